@@ -1,0 +1,1 @@
+"""ROS-free core of artcal_ros: numpy and OpenCV only."""

@@ -1,0 +1,194 @@
+"""Parameters shared by the node and the CLI: names, defaults, validation.
+
+One table (:data:`PARAMETERS`) declares every parameter once, with its type,
+default and a description; the ROS node declares its parameters from it and
+the CLI reads the same ROS 2 parameters file. Values are kept in a flat dict
+keyed by the dotted ROS name (``{"board.cols": 19, ...}``).
+"""
+
+from __future__ import annotations
+
+import os
+from collections.abc import Callable, Mapping
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import yaml
+
+from artcal_ros.core.errors import ParameterError
+
+ParamValue = bool | int | float | str
+
+
+@dataclass(frozen=True)
+class ParamSpec:
+    """One parameter: its dotted name, default, description and allowed values."""
+
+    name: str
+    default: ParamValue
+    description: str
+    choices: tuple[str, ...] = ()
+    check: Callable[[Any], str | None] | None = None  # returns a complaint or None
+
+
+def _positive(value: Any) -> str | None:
+    return None if value > 0 else "must be > 0"
+
+
+def _non_negative(value: Any) -> str | None:
+    return None if value >= 0 else "must be >= 0"
+
+
+PARAMETERS: tuple[ParamSpec, ...] = (
+    ParamSpec("board.type", "marker_grid", "Board layout.", choices=("marker_grid",)),
+    ParamSpec("board.dictionary", "DICT_6X6_1000",
+              "OpenCV predefined ArUco dictionary name of the markers."),
+    ParamSpec("board.cols", 19, "Markers per row.", check=_positive),
+    ParamSpec("board.rows", 9, "Markers per column.", check=_positive),
+    ParamSpec("board.marker_length", 0.06, "Side of a marker's outer black square, metres.",
+              check=_positive),
+    ParamSpec("board.marker_separation", 0.02, "Gap between neighbouring markers, metres.",
+              check=_positive),
+    ParamSpec("board.first_id", 0, "Id of the top-left marker; ids run row-major.",
+              check=_non_negative),
+    ParamSpec("board.polarity", "black",
+              "black: black border on white; white: the reverse; mixed: alternating like a "
+              "chequerboard; any: detect both.", choices=("black", "white", "mixed", "any")),
+    ParamSpec("points", "centers", "Correspondences per marker: its centre or its 4 corners.",
+              choices=("centers", "corners")),
+    ParamSpec("camera_model", "plumb_bob", "Lens model to solve for.",
+              choices=("plumb_bob", "rational_polynomial", "equidistant")),
+    ParamSpec("camera_name", "camera", "Name written into the calibration file."),
+    ParamSpec("output_file", "",
+              "Calibration YAML to write; empty means ~/.ros/camera_info/<camera_name>.yaml."),
+    ParamSpec("commit", False, "Send the result to the camera driver's set_camera_info."),
+)
+
+SPECS: dict[str, ParamSpec] = {s.name: s for s in PARAMETERS}
+
+
+def defaults() -> dict[str, ParamValue]:
+    """Every parameter at its default value."""
+    return {s.name: s.default for s in PARAMETERS}
+
+
+def _coerce(spec: ParamSpec, value: Any) -> ParamValue:
+    want = type(spec.default)
+    if want is bool:
+        if isinstance(value, bool):
+            return value
+        if isinstance(value, str) and value.lower() in ("true", "false"):
+            return value.lower() == "true"
+        raise ParameterError(f"parameter '{spec.name}': expected true or false, got {value!r}")
+    if want is int:
+        if isinstance(value, bool):
+            raise ParameterError(f"parameter '{spec.name}': expected an integer, got {value!r}")
+        try:
+            f = float(value)
+        except (TypeError, ValueError):
+            raise ParameterError(
+                f"parameter '{spec.name}': expected an integer, got {value!r}") from None
+        if f != int(f):
+            raise ParameterError(f"parameter '{spec.name}': expected an integer, got {value!r}")
+        return int(f)
+    if want is float:
+        if isinstance(value, bool):
+            raise ParameterError(f"parameter '{spec.name}': expected a number, got {value!r}")
+        try:
+            return float(value)
+        except (TypeError, ValueError):
+            raise ParameterError(
+                f"parameter '{spec.name}': expected a number, got {value!r}") from None
+    return str(value)
+
+
+def validate(values: Mapping[str, Any]) -> dict[str, ParamValue]:
+    """Return a complete, type-checked copy of ``values`` (missing names take defaults).
+
+    Raises:
+        ParameterError: naming the first unknown or bad parameter.
+    """
+    out = defaults()
+    for name, value in values.items():
+        spec = SPECS.get(name)
+        if spec is None:
+            raise ParameterError(
+                f"unknown parameter '{name}'; known: {', '.join(sorted(SPECS))}")
+        v = _coerce(spec, value)
+        if spec.choices and v not in spec.choices:
+            raise ParameterError(
+                f"parameter '{name}': {v!r} is not one of {', '.join(spec.choices)}")
+        if spec.check is not None:
+            complaint = spec.check(v)
+            if complaint:
+                raise ParameterError(f"parameter '{name}': {v!r} {complaint}")
+        out[name] = v
+    return out
+
+
+def _flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
+    flat: dict[str, Any] = {}
+    for key, value in tree.items():
+        name = f"{prefix}{key}"
+        if isinstance(value, Mapping):
+            flat.update(_flatten(value, name + "."))
+        else:
+            flat[name] = value
+    return flat
+
+
+def load_params(path: str | os.PathLike[str] | None = None,
+                overrides: Mapping[str, Any] | None = None) -> dict[str, ParamValue]:
+    """Read a ROS 2 parameters file (``/**: ros__parameters: ...``) into a flat dict.
+
+    Args:
+        path: the YAML file; None gives the defaults.
+        overrides: values that replace the file's, by dotted name.
+
+    Returns:
+        ``{"board.cols": 19, ...}`` with every known parameter present.
+
+    Raises:
+        ParameterError: the file cannot be read, or a value is bad (the message names it).
+    """
+    values: dict[str, Any] = {}
+    if path is not None:
+        try:
+            text = Path(path).read_text()
+        except OSError as e:
+            raise ParameterError(f"cannot read parameters file {path}: {e.strerror}") from None
+        try:
+            doc = yaml.safe_load(text) or {}
+        except yaml.YAMLError as e:
+            raise ParameterError(f"parameters file {path} is not valid YAML: {e}") from None
+        if not isinstance(doc, Mapping):
+            raise ParameterError(f"parameters file {path}: expected a mapping at the top")
+        for node_block in doc.values():
+            if isinstance(node_block, Mapping) and "ros__parameters" in node_block:
+                values.update(_flatten(node_block["ros__parameters"] or {}))
+        if not values and doc:
+            # A plain (non-ROS) mapping of parameters is accepted too.
+            values.update(_flatten(doc))
+    values.update(overrides or {})
+    return validate(values)
+
+
+def parse_override(text: str) -> tuple[str, Any]:
+    """Parse a ``KEY=VALUE`` command-line override; VALUE is read as YAML (1, 0.5, true)."""
+    if "=" not in text:
+        raise ParameterError(f"--set expects KEY=VALUE, got {text!r}")
+    key, raw = text.split("=", 1)
+    try:
+        value = yaml.safe_load(raw) if raw else ""
+    except yaml.YAMLError:
+        value = raw
+    return key.strip(), value
+
+
+def output_path(params: Mapping[str, Any]) -> Path:
+    """The calibration file to write: ``output_file`` or ~/.ros/camera_info/<camera_name>.yaml."""
+    explicit = str(params.get("output_file") or "")
+    if explicit:
+        return Path(os.path.expanduser(explicit))
+    return Path.home() / ".ros" / "camera_info" / f"{params.get('camera_name', 'camera')}.yaml"

@@ -1,0 +1,1 @@
+"""Thin rclpy nodes: the calibrator and the bag replay node."""
