@@ -1,0 +1,86 @@
+"""The result of detecting markers in one image (shared by detection, calibration and I/O)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from typing import Any
+
+import numpy as np
+
+
+@dataclass(frozen=True)
+class Detections:
+    """Markers found in one image, in OpenCV pixel coordinates (top-left pixel centre = (0, 0)).
+
+    Attributes:
+        ids: (N,) int64 marker ids, all on the board.
+        corners_px: (N, 4, 2) float64, pixels; corner order TL, TR, BR, BL on the board.
+        centers_px: (N, 2) float64, pixels; the image of each marker's centre.
+        image_size: (width, height) of the image, pixels.
+        corner_sigma_px: (N, 4) float64, estimated 1-sigma error of each corner, pixels
+            (NaN where unknown).
+        center_sigma_px: (N,) float64, the same for each centre.
+        sharpness: a focus measure of the image (larger is sharper; NaN if unknown).
+        source: where the image came from (a file name or a bag message), for reports.
+    """
+
+    ids: np.ndarray
+    corners_px: np.ndarray
+    centers_px: np.ndarray
+    image_size: tuple[int, int]
+    corner_sigma_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 4)))
+    center_sigma_px: np.ndarray = field(default_factory=lambda: np.zeros((0,)))
+    sharpness: float = float("nan")
+    source: str = ""
+
+    def __post_init__(self) -> None:
+        n = len(self.ids)
+        object.__setattr__(self, "ids", np.asarray(self.ids, dtype=np.int64).reshape(n))
+        object.__setattr__(self, "corners_px",
+                           np.asarray(self.corners_px, dtype=np.float64).reshape(n, 4, 2))
+        object.__setattr__(self, "centers_px",
+                           np.asarray(self.centers_px, dtype=np.float64).reshape(n, 2))
+        if len(self.corner_sigma_px) != n:
+            object.__setattr__(self, "corner_sigma_px", np.full((n, 4), np.nan))
+        if len(self.center_sigma_px) != n:
+            object.__setattr__(self, "center_sigma_px", np.full((n,), np.nan))
+
+    def __len__(self) -> int:
+        return len(self.ids)
+
+    @classmethod
+    def empty(cls, image_size: tuple[int, int], source: str = "") -> Detections:
+        """No markers."""
+        return cls(np.zeros(0, np.int64), np.zeros((0, 4, 2)), np.zeros((0, 2)),
+                   image_size, source=source)
+
+    def subset(self, mask: np.ndarray) -> Detections:
+        """Only the markers where ``mask`` (bool (N,) or index array) selects."""
+        return Detections(self.ids[mask], self.corners_px[mask], self.centers_px[mask],
+                          self.image_size, self.corner_sigma_px[mask],
+                          self.center_sigma_px[mask], self.sharpness, self.source)
+
+    def to_json(self, file: str | None = None) -> dict[str, Any]:
+        """The ``artcal detect --json`` record of this image."""
+        w, h = self.image_size
+        return {
+            "file": self.source if file is None else file,
+            "width": int(w),
+            "height": int(h),
+            "markers": [
+                {"id": int(i), "corners": c.tolist(), "center": m.tolist()}
+                for i, c, m in zip(self.ids, self.corners_px, self.centers_px, strict=True)
+            ],
+        }
+
+    @classmethod
+    def from_json(cls, record: dict[str, Any]) -> Detections:
+        """Read back one image record of the ``artcal detect --json`` format."""
+        markers = record.get("markers", [])
+        return cls(
+            np.array([m["id"] for m in markers], dtype=np.int64),
+            np.array([m["corners"] for m in markers], dtype=np.float64).reshape(-1, 4, 2),
+            np.array([m["center"] for m in markers], dtype=np.float64).reshape(-1, 2),
+            (int(record["width"]), int(record["height"])),
+            source=str(record.get("file", "")),
+        )
