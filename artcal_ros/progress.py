@@ -5,12 +5,12 @@ from __future__ import annotations
 import sys
 import time
 from collections.abc import Iterable, Iterator
-from typing import TextIO, TypeVar
+from typing import Generic, TextIO, TypeVar
 
 T = TypeVar("T")
 
 
-class Progress:
+class Progress(Generic[T]):
     """Draw ``label [#####.....] 12/40 3.1/s`` on a terminal, or a line every 10 % otherwise.
 
     Use as ``for item in Progress(items, total=n, label="detect"): ...`` or call
