@@ -63,6 +63,14 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("output_file", "",
               "Calibration YAML to write; empty means ~/.ros/camera_info/<camera_name>.yaml."),
     ParamSpec("commit", False, "Send the result to the camera driver's set_camera_info."),
+    # Node-only: how the calibrator node listens and when it may solve.
+    ParamSpec("image_transport", "raw",
+              "raw: subscribe sensor_msgs/Image on 'image'; compressed: "
+              "sensor_msgs/CompressedImage on 'image/compressed'.", choices=("raw", "compressed")),
+    ParamSpec("min_views", 10, "Views the node collects before ~/calibrate will solve.",
+              check=_positive),
+    ParamSpec("max_views", 40, "Views a solve uses at most (the most informative are chosen).",
+              check=_positive),
 )
 
 SPECS: dict[str, ParamSpec] = {s.name: s for s in PARAMETERS}
