@@ -1,0 +1,383 @@
+"""Printable boards at exact physical scale: PDF, SVG and PNG.
+
+A board is laid out on one page: the marker area with its quiet margin
+(:attr:`Board.margin_m`), a white page border, and a footer holding the board's
+parameters (:meth:`Board.describe`) and a 100 mm scale bar to check the print.
+Everything black on the page is a set of disjoint axis-aligned rectangles in
+millimetres (page frame: origin at the page's top-left corner, x right, y
+down), derived from :meth:`Board.is_white`, so the three formats print the
+same board:
+
+- PDF 1.4 and SVG: the rectangles as exact vectors, page size in mm
+  (1 mm = 72/25.4 pt in the PDF);
+- PNG: 8-bit grey at ``dpi`` with exact area coverage at edges, and the dpi
+  recorded in the ``pHYs`` chunk so that image viewers and printers know the
+  physical size.
+
+In the PNG, a board point ``p`` (metres, board frame) lands at the OpenCV pixel
+coordinate ``(origin_mm + 1000 p) * dpi / 25.4 - 0.5`` (see :func:`board_to_png_px`).
+"""
+
+from __future__ import annotations
+
+import math
+import struct
+import zlib
+from collections.abc import Iterator
+from dataclasses import dataclass
+from pathlib import Path
+
+import cv2
+import numpy as np
+
+from artcal_ros.core.board import Board
+from artcal_ros.core.errors import ParameterError
+
+MM_PER_INCH = 25.4
+PT_PER_MM = 72.0 / MM_PER_INCH
+PAGE_BORDER_MM = 10.0    # white border: most printers cannot print to the paper's edge
+FOOTER_MM = 20.0         # room for two text lines and the scale bar
+SCALE_BAR_MM = 100.0
+SCALE_BAR_THICK_MM = 1.5
+FORMATS = (".pdf", ".svg", ".png")
+# (width, height) in mm, portrait
+PAPERS: dict[str, tuple[float, float]] = {
+    "A0": (841.0, 1189.0), "A1": (594.0, 841.0), "A2": (420.0, 594.0),
+    "A3": (297.0, 420.0), "A4": (210.0, 297.0), "letter": (215.9, 279.4),
+}
+PRINT_NOTE = "Print at actual size (100 %, no fit-to-page). The bar must measure 100 mm."
+
+# Helvetica advance widths (1/1000 em) for fitting text to the page width.
+_HELVETICA = {**dict.fromkeys("ijl'", 222), **dict.fromkeys(" .,:;!/[]fIt", 278),
+              **dict.fromkeys("-()r`", 333), **dict.fromkeys("*", 389),
+              **dict.fromkeys("ckszvxyJ\"", 500), **dict.fromkeys("+=<>~", 584),
+              **dict.fromkeys("FTZ", 611), **dict.fromkeys("ABEKPSVXY&", 667),
+              **dict.fromkeys("wCDHNRU", 722), **dict.fromkeys("GOQ", 778),
+              **dict.fromkeys("mM", 833), **dict.fromkeys("%", 889),
+              **dict.fromkeys("W", 944), **dict.fromkeys("@", 1015)}
+
+
+def text_width_mm(text: str, size_mm: float) -> float:
+    """Width of ``text`` set in Helvetica at ``size_mm`` (em size), millimetres."""
+    return sum(_HELVETICA.get(ch, 556) for ch in text) * size_mm / 1000.0
+
+
+@dataclass(frozen=True)
+class TextLine:
+    """One line of Helvetica text: left end of its baseline and em size, mm."""
+
+    x_mm: float
+    y_mm: float
+    size_mm: float
+    text: str
+
+
+@dataclass(frozen=True)
+class PageLayout:
+    """Everything drawn on the page, in millimetres (page frame, y down).
+
+    Attributes:
+        page_size_mm: (width, height) of the page.
+        board_origin_mm: page position of the board frame's origin (the top-left outer
+            corner of marker ``first_id``).
+        rects_mm: (K, 4) float64 black rectangles (x0, y0, x1, y1), disjoint.
+        texts: the footer's text lines.
+        scale_bar_mm: (x0, y0, x1, y1) of the 100 mm scale bar's main stroke.
+        description: :meth:`Board.describe` of the board.
+    """
+
+    page_size_mm: tuple[float, float]
+    board_origin_mm: tuple[float, float]
+    rects_mm: np.ndarray
+    texts: tuple[TextLine, ...]
+    scale_bar_mm: tuple[float, float, float, float]
+    description: str
+
+
+def board_black_rects_m(board: Board) -> np.ndarray:
+    """The board's black areas, quiet margin included, as disjoint rectangles.
+
+    Every edge of the printed board lies on a module boundary, a marker edge or
+    a tile boundary (midway across a gap), so the board is a grid of cells each
+    of one colour (read from :meth:`Board.is_white`). Runs of black cells merge
+    into rows, and rows with the same span into rectangles, which keeps vector
+    files small.
+
+    Returns:
+        (K, 4) float64 (x0, y0, x1, y1), metres, board frame.
+    """
+    n = board.bits + 2
+    margin = board.margin_m
+    width, height = board.size_m
+
+    def edges(count: int, extent: float) -> np.ndarray:
+        starts = np.arange(count) * board.pitch
+        modules = (starts[:, None] + np.arange(n + 1) * board.module_length).ravel()
+        tiles = starts[1:] - 0.5 * board.marker_separation
+        e = np.concatenate([modules, tiles, [-margin, extent + margin]])
+        return np.unique(np.round(e, 12))
+
+    xs, ys = edges(board.cols, width), edges(board.rows, height)
+    cx, cy = 0.5 * (xs[1:] + xs[:-1]), 0.5 * (ys[1:] + ys[:-1])
+    black = ~board.is_white(*np.meshgrid(cx, cy))       # (rows of cells, cols of cells)
+    rects: list[tuple[float, float, float, float]] = []
+    open_runs: dict[tuple[int, int], int] = {}          # (a, b) column span -> first cell row
+    for r in range(black.shape[0] + 1):
+        runs: set[tuple[int, int]] = set()
+        if r < black.shape[0]:
+            d = np.diff(np.concatenate([[0], black[r].astype(np.int8), [0]]))
+            runs = set(zip(np.flatnonzero(d == 1).tolist(), np.flatnonzero(d == -1).tolist(),
+                           strict=True))
+        for span in [s for s in open_runs if s not in runs]:
+            r0 = open_runs.pop(span)
+            rects.append((xs[span[0]], ys[r0], xs[span[1]], ys[r]))
+        for span in runs:
+            open_runs.setdefault(span, r)
+    return np.array(sorted(rects, key=lambda t: (t[1], t[0])), dtype=np.float64).reshape(-1, 4)
+
+
+def layout_page(board: Board, *, paper: str | None = None) -> PageLayout:
+    """Lay the board, its description and the scale bar out on one page.
+
+    Args:
+        board: the board to print.
+        paper: None to size the page to its content, or a key of :data:`PAPERS`
+            (portrait or landscape, whichever fits; content centred).
+
+    Raises:
+        ParameterError: the board does not fit on ``paper``.
+    """
+    margin_mm = board.margin_m * 1000.0
+    area_w = board.size_m[0] * 1000.0 + 2 * margin_mm
+    area_h = board.size_m[1] * 1000.0 + 2 * margin_mm
+    content_w = max(area_w, SCALE_BAR_MM + 30.0)
+    content_h = area_h + FOOTER_MM
+    page_w, page_h = content_w + 2 * PAGE_BORDER_MM, content_h + 2 * PAGE_BORDER_MM
+    if paper is not None:
+        if paper not in PAPERS:
+            raise ParameterError(f"--paper {paper!r}: use one of fit, {', '.join(PAPERS)}")
+        pw, ph = PAPERS[paper]
+        fits = [(w, h) for w, h in ((pw, ph), (ph, pw)) if page_w <= w and page_h <= h]
+        if not fits:
+            raise ParameterError(
+                f"--paper {paper}: the board needs {page_w:.0f} x {page_h:.0f} mm with its "
+                f"border and footer but {paper} is {pw:g} x {ph:g} mm; use a larger paper, "
+                "--paper fit, or a smaller board.marker_length")
+        page_w, page_h = fits[0]
+    left = 0.5 * (page_w - content_w)
+    top = 0.5 * (page_h - content_h)
+    area_x = left + 0.5 * (content_w - area_w)
+    origin = (area_x + margin_mm, top + margin_mm)
+    board_rects = board_black_rects_m(board) * 1000.0 + np.array([*origin, *origin])
+
+    # Footer: description, print note, then the scale bar with 10 mm ticks.
+    foot_y = top + area_h
+    size = min(3.0, content_w / max(text_width_mm(board.describe(), 1.0), 1e-9))
+    texts: tuple[TextLine, ...] = (
+        TextLine(left, foot_y + 5.0, size, board.describe()),
+        TextLine(left, foot_y + 9.5, min(size, 2.5), PRINT_NOTE))
+    bar = (left, foot_y + 13.0, left + SCALE_BAR_MM, foot_y + 13.0 + SCALE_BAR_THICK_MM)
+    tick_w = 0.3
+    ticks = []
+    for k in range(11):
+        x = min(max(bar[0] + 10.0 * k - 0.5 * tick_w, bar[0]), bar[2] - tick_w)
+        ticks.append((x, bar[3], x + tick_w, bar[3] + (2.5 if k in (0, 5, 10) else 1.2)))
+    texts += (TextLine(bar[2] + 3.0, bar[3] + 1.0, 3.0, "100 mm"),)
+    rects = np.vstack([board_rects, np.array([bar, *ticks], dtype=np.float64)])
+    return PageLayout((page_w, page_h), origin, rects, texts, bar, board.describe())
+
+
+def board_to_png_px(layout: PageLayout, points_m: np.ndarray, dpi: float) -> np.ndarray:
+    """Where board points land in the PNG rendered at ``dpi``.
+
+    Args:
+        points_m: (N, 2) or (N, 3) float64, board frame, metres (z ignored).
+
+    Returns:
+        (N, 2) float64, OpenCV pixel coordinates (centre of the top-left pixel = (0, 0)).
+    """
+    p = np.asarray(points_m, dtype=np.float64)[:, :2] * 1000.0 + np.array(layout.board_origin_mm)
+    return p * (dpi / MM_PER_INCH) - 0.5
+
+
+# --- PNG ----------------------------------------------------------------------------
+def _png_chunk(kind: bytes, data: bytes) -> bytes:
+    return (struct.pack(">I", len(data)) + kind + data
+            + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF))
+
+
+def _coverage(a: float, b: float, lo: int, hi: int) -> tuple[int, np.ndarray]:
+    """Fraction of each pixel i in [lo, hi) covered by [a, b) (pixel i spans [i, i+1))."""
+    i0, i1 = max(lo, math.floor(a)), min(hi, math.ceil(b))
+    if i1 <= i0:
+        return i0, np.zeros(0, np.float32)
+    i = np.arange(i0, i1, dtype=np.float64)
+    return i0, (np.minimum(b, i + 1) - np.maximum(a, i)).clip(0.0, 1.0).astype(np.float32)
+
+
+def _text_layer(layout: PageLayout, dpi: float, width: int) -> tuple[int, np.ndarray]:
+    """The footer's text drawn with OpenCV's Hershey font: (first row, (h, width) uint8)."""
+    s = dpi / MM_PER_INCH
+    top = int(min(t.y_mm - t.size_mm for t in layout.texts) * s) - 2
+    bottom = math.ceil(max(t.y_mm + 0.3 * t.size_mm for t in layout.texts) * s) + 2
+    img = np.full((bottom - top, width), 255, np.uint8)
+    font = cv2.FONT_HERSHEY_SIMPLEX
+    for t in layout.texts:
+        (w1, h1), _ = cv2.getTextSize(t.text, font, 1.0, 1)
+        scale = min(0.72 * t.size_mm * s / h1,
+                    text_width_mm(t.text, t.size_mm) * s / max(w1, 1))
+        thick = max(1, round(scale * 1.6))
+        org = (round(t.x_mm * s), round(t.y_mm * s) - top)
+        cv2.putText(img, t.text, org, font, scale, 0, thick, cv2.LINE_AA)
+    return top, img
+
+
+def png_rows(layout: PageLayout, dpi: float, band: int = 256) -> Iterator[np.ndarray]:
+    """The page rendered at ``dpi``, as successive bands of rows ((h, W) uint8, white = 255).
+
+    Banded so that a large board at a high dpi never needs the whole page in memory.
+    """
+    s = dpi / MM_PER_INCH
+    width = round(layout.page_size_mm[0] * s)
+    height = round(layout.page_size_mm[1] * s)
+    rects = layout.rects_mm * s
+    text_top, text = _text_layer(layout, dpi, width)
+    for r0 in range(0, height, band):
+        r1 = min(height, r0 + band)
+        ink = np.zeros((r1 - r0, width), np.float32)
+        for x0, y0, x1, y1 in rects[(rects[:, 3] > r0) & (rects[:, 1] < r1)]:
+            ra, cy = _coverage(y0, y1, r0, r1)
+            ca, cx = _coverage(x0, x1, 0, width)
+            ink[ra - r0:ra - r0 + cy.size, ca:ca + cx.size] += cy[:, None] * cx[None, :]
+        grey = np.rint(255.0 * (1.0 - np.clip(ink, 0.0, 1.0))).astype(np.uint8)
+        a, b = max(r0, text_top), min(r1, text_top + text.shape[0])
+        if a < b:
+            grey[a - r0:b - r0] = np.minimum(grey[a - r0:b - r0], text[a - text_top:b - text_top])
+        yield grey
+
+
+def render_png(layout: PageLayout, dpi: float = 300.0) -> bytes:
+    """An 8-bit grey PNG of the page with ``dpi`` recorded in its pHYs chunk."""
+    s = dpi / MM_PER_INCH
+    width = round(layout.page_size_mm[0] * s)
+    height = round(layout.page_size_mm[1] * s)
+    ppm = round(dpi / 0.0254)   # pHYs stores pixels per metre
+    out = [b"\x89PNG\r\n\x1a\n",
+           _png_chunk(b"IHDR", struct.pack(">IIBBBBB", width, height, 8, 0, 0, 0, 0)),
+           _png_chunk(b"pHYs", struct.pack(">IIB", ppm, ppm, 1)),
+           _png_chunk(b"tEXt", b"Description\x00" + layout.description.encode("latin-1"))]
+    z = zlib.compressobj(6)
+    for rows in png_rows(layout, dpi):
+        filtered = np.zeros((rows.shape[0], rows.shape[1] + 1), np.uint8)  # filter 0 per row
+        filtered[:, 1:] = rows
+        data = z.compress(filtered.tobytes())
+        if data:
+            out.append(_png_chunk(b"IDAT", data))
+    out.append(_png_chunk(b"IDAT", z.flush()))
+    out.append(_png_chunk(b"IEND", b""))
+    return b"".join(out)
+
+
+# --- SVG ----------------------------------------------------------------------------
+def _xml_escape(text: str) -> str:
+    return text.replace("&", "&amp;").replace("<", "&lt;").replace(">", "&gt;")
+
+
+def render_svg(layout: PageLayout) -> str:
+    """The page as SVG, user units = millimetres (width/height in mm, matching viewBox)."""
+    w, h = layout.page_size_mm
+    path = " ".join(f"M{x0:.4f} {y0:.4f}H{x1:.4f}V{y1:.4f}H{x0:.4f}Z"
+                    for x0, y0, x1, y1 in layout.rects_mm)
+    lines = [
+        '<?xml version="1.0" encoding="UTF-8"?>',
+        f'<svg xmlns="http://www.w3.org/2000/svg" width="{w:.4f}mm" height="{h:.4f}mm" '
+        f'viewBox="0 0 {w:.4f} {h:.4f}">',
+        f"<title>{_xml_escape(layout.description)}</title>",
+        f'<rect x="0" y="0" width="{w:.4f}" height="{h:.4f}" fill="#ffffff"/>',
+        # One path: abutting rectangles fill as one shape, with no anti-aliased seams.
+        f'<path fill="#000000" d="{path}"/>',
+    ]
+    lines += [f'<text x="{t.x_mm:.4f}" y="{t.y_mm:.4f}" font-family="Helvetica, Arial, '
+              f'sans-serif" font-size="{t.size_mm:.4f}" fill="#000000">'
+              f"{_xml_escape(t.text)}</text>" for t in layout.texts]
+    lines.append("</svg>")
+    return "\n".join(lines) + "\n"
+
+
+# --- PDF ----------------------------------------------------------------------------
+def _pdf_string(text: str) -> bytes:
+    raw = text.encode("latin-1", errors="replace")
+    return b"(" + raw.replace(b"\\", b"\\\\").replace(b"(", b"\\(").replace(b")", b"\\)") + b")"
+
+
+def render_pdf(layout: PageLayout) -> bytes:
+    """The page as a one-page PDF 1.4, MediaBox = the physical page size in points."""
+    w_pt, h_pt = (v * PT_PER_MM for v in layout.page_size_mm)
+    k = PT_PER_MM
+    # Draw in mm with y down; one fill of all rectangles so that they merge without seams.
+    ops = [f"q {k:.6f} 0 0 {-k:.6f} 0 {h_pt:.4f} cm 0 g".encode()]
+    ops += [f"{x0:.4f} {y0:.4f} {x1 - x0:.4f} {y1 - y0:.4f} re".encode()
+            for x0, y0, x1, y1 in layout.rects_mm]
+    ops.append(b"f Q")
+    for t in layout.texts:
+        ops.append(f"BT /F1 {t.size_mm * k:.3f} Tf 1 0 0 1 {t.x_mm * k:.4f} "
+                   f"{h_pt - t.y_mm * k:.4f} Tm ".encode() + _pdf_string(t.text) + b" Tj ET")
+    content = zlib.compress(b"\n".join(ops) + b"\n", 9)
+    objects = [
+        b"<< /Type /Catalog /Pages 2 0 R >>",
+        b"<< /Type /Pages /Kids [3 0 R] /Count 1 >>",
+        f"<< /Type /Page /Parent 2 0 R /MediaBox [0 0 {w_pt:.4f} {h_pt:.4f}] "
+        f"/Resources << /Font << /F1 5 0 R >> >> /Contents 4 0 R >>".encode(),
+        f"<< /Length {len(content)} /Filter /FlateDecode >>\nstream\n".encode()
+        + content + b"\nendstream",
+        b"<< /Type /Font /Subtype /Type1 /BaseFont /Helvetica /Encoding /WinAnsiEncoding >>",
+        b"<< /Title " + _pdf_string(layout.description) + b" /Producer (artcal_ros) >>",
+    ]
+    out = bytearray(b"%PDF-1.4\n%\xe2\xe3\xcf\xd3\n")
+    offsets = []
+    for i, body in enumerate(objects, start=1):
+        offsets.append(len(out))
+        out += f"{i} 0 obj\n".encode() + body + b"\nendobj\n"
+    xref = len(out)
+    out += f"xref\n0 {len(objects) + 1}\n0000000000 65535 f \n".encode()
+    out += b"".join(f"{o:010d} 00000 n \n".encode() for o in offsets)
+    out += (f"trailer\n<< /Size {len(objects) + 1} /Root 1 0 R /Info {len(objects)} 0 R >>\n"
+            f"startxref\n{xref}\n%%EOF\n").encode()
+    return bytes(out)
+
+
+def write_printable(board: Board, path: str | Path, *, dpi: float = 300.0,
+                    paper: str | None = None) -> PageLayout:
+    """Write the printable board to ``path``; the format follows its extension.
+
+    Args:
+        board: the board to print.
+        path: ``*.pdf``, ``*.svg`` or ``*.png``.
+        dpi: PNG resolution, dots per inch (ignored for the vector formats).
+        paper: see :func:`layout_page`.
+
+    Returns:
+        The page layout (where the board sits on the page, in mm).
+
+    Raises:
+        ParameterError: unknown extension, bad dpi, or the board does not fit the paper.
+    """
+    path = Path(path)
+    suffix = path.suffix.lower()
+    if suffix not in FORMATS:
+        raise ParameterError(f"--out {path}: unknown format {suffix or '(no extension)'!r}; "
+                             "use a .pdf, .svg or .png file name")
+    if not 10.0 <= dpi <= 2400.0:
+        raise ParameterError(f"--dpi {dpi:g}: use a resolution between 10 and 2400 dots per inch")
+    layout = layout_page(board, paper=paper)
+    if suffix == ".png":
+        data = render_png(layout, dpi)
+    elif suffix == ".svg":
+        data = render_svg(layout).encode("utf-8")
+    else:
+        data = render_pdf(layout)
+    try:
+        path.write_bytes(data)
+    except OSError as e:
+        raise ParameterError(f"--out {path}: cannot write: {e.strerror}") from None
+    return layout
