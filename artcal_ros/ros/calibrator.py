@@ -1,0 +1,263 @@
+"""The calibrator node: collect views from a live image stream, solve on request.
+
+Interface (names relative, remappable):
+  subscribes  image                (sensor_msgs/Image; best effort, keep last 1)
+              image/compressed     (sensor_msgs/CompressedImage, with image_transport: compressed)
+  publishes   ~/overlay            (sensor_msgs/Image bgr8: markers, coverage, what is missing)
+              ~/coverage           (sensor_msgs/Image bgr8 heat map; transient local)
+              /diagnostics         (diagnostic_msgs/DiagnosticArray, ~1 Hz)
+              camera_info          (sensor_msgs/CameraInfo; reliable, transient local, depth 1)
+  services    ~/calibrate, ~/reset (std_srvs/Trigger)
+  calls       set_camera_info      (sensor_msgs/SetCameraInfo) when ``commit`` is true
+
+Threads: image callbacks only hand the message to a keep-latest worker
+(detection runs there, on the newest frame; frames replaced while it is busy
+are counted as dropped). ``~/calibrate`` runs the solve on its own thread and
+waits for it in a reentrant callback, so images keep flowing meanwhile.
+"""
+
+from __future__ import annotations
+
+import sys
+import threading
+import time
+from typing import Any
+
+import rclpy
+from diagnostic_msgs.msg import DiagnosticArray
+from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.node import Node
+from rclpy.parameter import Parameter
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from sensor_msgs.srv import SetCameraInfo
+from std_srvs.srv import Trigger
+
+from artcal_ros.core.board import Board
+from artcal_ros.core.coverage import CoverageConfig, ViewCollector
+from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
+from artcal_ros.core.overlay import render_heat_map, render_overlay
+from artcal_ros.core.params import ParamValue
+from artcal_ros.ros import msgs
+from artcal_ros.ros.diagnostics import Counters, diagnostic_array
+from artcal_ros.ros.parameters import check_update, declare_parameters
+from artcal_ros.ros.solve import SolveOutcome, run_solve
+
+IMAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                       reliability=ReliabilityPolicy.BEST_EFFORT,
+                       durability=DurabilityPolicy.VOLATILE)
+LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                         reliability=ReliabilityPolicy.RELIABLE,
+                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
+OVERLAY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                         reliability=ReliabilityPolicy.RELIABLE)
+
+
+class CalibratorNode(Node):
+    """Collects calibration views from ``image`` and solves on ``~/calibrate``.
+
+    Raises:
+        ParameterError: a parameter is bad (the message names it).
+    """
+
+    def __init__(self, *, node_name: str = "calibrator") -> None:
+        super().__init__(node_name)
+        self.params: dict[str, ParamValue] = declare_parameters(self)
+        self.board = Board.from_params(self.params)
+        # Detection pulls in OpenCV's ArUco machinery; imported here so a bad parameter
+        # is refused before that cost.
+        from artcal_ros.core.detect import Detector, DetectorConfig
+
+        self.detector = Detector(self.board, DetectorConfig())
+        self.collector = ViewCollector(
+            self.board, CoverageConfig(min_views=int(self.params["min_views"])))
+        self.add_on_set_parameters_callback(self._on_set_parameters)
+        self.counters = Counters()
+        self.frame_id = "camera"
+        self.last_summary = ""
+        self._solving = threading.Lock()
+        self._stopping = threading.Event()
+
+        images = MutuallyExclusiveCallbackGroup()
+        services = ReentrantCallbackGroup()
+        timers = MutuallyExclusiveCallbackGroup()
+        self.overlay_pub = self.create_publisher(Image, "~/overlay", OVERLAY_QOS)
+        self.coverage_pub = self.create_publisher(Image, "~/coverage", LATCHED_QOS)
+        self.info_pub = self.create_publisher(CameraInfo, "camera_info", LATCHED_QOS)
+        self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
+        if self.params["image_transport"] == "compressed":
+            topic = self.resolve_topic_name("image") + "/compressed"
+            self.create_subscription(CompressedImage, topic, self._on_image, IMAGE_QOS,
+                                     callback_group=images)
+        else:
+            self.create_subscription(Image, "image", self._on_image, IMAGE_QOS,
+                                     callback_group=images)
+        self.create_service(Trigger, "~/calibrate", self._on_calibrate, callback_group=services)
+        self.create_service(Trigger, "~/reset", self._on_reset, callback_group=services)
+        self.set_info_client: Any = self.create_client(SetCameraInfo, "set_camera_info",
+                                                  callback_group=services)
+        self.create_timer(1.0, self._publish_diagnostics, callback_group=timers)
+
+        from artcal_ros.ros.latest import LatestWorker
+
+        self.worker: LatestWorker[Any] = LatestWorker(self._process, self._on_worker_error,
+                                                      name="detect")
+        self._publish_coverage()
+        self.get_logger().info(
+            f"calibrating from '{self.resolve_topic_name('image')}' "
+            f"({self.params['image_transport']}); board {self.board.describe()}; "
+            f"call ~/calibrate after {self.params['min_views']} views")
+
+    # --- images -------------------------------------------------------------------
+    def _on_image(self, msg: Image | CompressedImage) -> None:
+        # Executor thread: hand over and return; the worker does the work.
+        self.counters.seen += 1
+        self.worker.offer(msg)
+
+    def _process(self, msg: Image | CompressedImage) -> None:
+        from artcal_ros.core.images import compressed_to_numpy, image_to_numpy
+
+        try:
+            image = compressed_to_numpy(msg) if isinstance(msg, CompressedImage) \
+                else image_to_numpy(msg)
+        except ImageFormatError as e:
+            self.counters.broken += 1
+            self.get_logger().warning(f"skipping a broken frame: {e}",
+                                      throttle_duration_sec=5.0)
+            return
+        self.frame_id = msg.header.frame_id or self.frame_id
+        dets = self.detector.detect(image)
+        self.counters.processed += 1
+        self.counters.markers_last = len(dets)
+        kept = self.collector.add(dets)
+        if kept:
+            self.counters.used += 1
+            self._publish_coverage()
+        if self.overlay_pub.get_subscription_count() > 0:
+            picture = render_overlay(image, dets, self.collector.counts(),
+                                     self.collector.readiness(), kept=kept)
+            self.overlay_pub.publish(msgs.bgr8_image(picture, msgs.header(msg.header.stamp,
+                                                                          self.frame_id)))
+
+    def _on_worker_error(self, error: BaseException) -> None:
+        self.counters.failed += 1
+        self.get_logger().error(f"detection failed on a frame: {error!r}",
+                                throttle_duration_sec=5.0)
+
+    def _publish_coverage(self) -> None:
+        picture = render_heat_map(self.collector.counts(), self.collector.image_size)
+        stamp = self.get_clock().now().to_msg()
+        self.coverage_pub.publish(msgs.bgr8_image(picture, msgs.header(stamp, self.frame_id)))
+
+    def _publish_diagnostics(self) -> None:
+        self.diag_pub.publish(diagnostic_array(
+            self.get_name(), str(self.params["camera_name"]), self.counters,
+            self.worker.dropped, self.collector.readiness(), self.last_summary,
+            self.get_clock().now().to_msg()))
+
+    # --- services -----------------------------------------------------------------
+    def _on_calibrate(self, request: Trigger.Request, response: Trigger.Response
+                      ) -> Trigger.Response:
+        if not self._solving.acquire(blocking=False):
+            response.success = False
+            response.message = "a calibration is already running; try again when it ends"
+            return response
+        try:
+            outcome = self._calibrate()
+        finally:
+            self._solving.release()
+        response.success = outcome.success
+        response.message = outcome.message
+        log = self.get_logger().info if outcome.success else self.get_logger().warning
+        log(f"~/calibrate: {outcome.message}")
+        return response
+
+    def _calibrate(self) -> SolveOutcome:
+        readiness = self.collector.readiness()
+        if not readiness.enough_views:
+            return SolveOutcome(False, f"not enough views to calibrate: {readiness.summary()}")
+        views = self.collector.views
+        size = self.collector.image_size
+        assert size is not None  # there are views
+        outcome = run_solve(views, self.board, size, self.params, readiness,
+                            stopping=self._stopping)
+        if outcome.result is None:
+            return outcome
+        stamp = self.get_clock().now().to_msg()
+        info = msgs.camera_info(outcome.result, msgs.header(stamp, self.frame_id),
+                                outcome.projection)
+        self.info_pub.publish(info)
+        self.last_summary = outcome.message
+        if self.params["commit"]:
+            return self._commit(info, outcome)
+        return outcome
+
+    def _commit(self, info: CameraInfo, outcome: SolveOutcome) -> SolveOutcome:
+        name = self.set_info_client.srv_name
+        if not self.set_info_client.wait_for_service(timeout_sec=2.0):
+            return SolveOutcome(False, f"{outcome.message}; NOT committed: no {name} service "
+                                "(is the camera driver running?)", outcome.result)
+        done = threading.Event()
+        future = self.set_info_client.call_async(SetCameraInfo.Request(camera_info=info))
+        future.add_done_callback(lambda _: done.set())
+        t0 = time.monotonic()
+        while not done.wait(0.1):
+            if self._stopping.is_set() or time.monotonic() - t0 > 10.0:
+                return SolveOutcome(False, f"{outcome.message}; NOT committed: {name} did not "
+                                    "answer", outcome.result)
+        answer = future.result()
+        if answer is None or not answer.success:
+            why = answer.status_message if answer is not None else "no answer"
+            return SolveOutcome(False, f"{outcome.message}; NOT committed: {name}: {why}",
+                                outcome.result)
+        return SolveOutcome(True, f"{outcome.message}; committed to {name}", outcome.result)
+
+    def _on_reset(self, request: Trigger.Request, response: Trigger.Response
+                  ) -> Trigger.Response:
+        n = len(self.collector.views)
+        self.collector.reset()
+        self.counters.used = 0
+        self._publish_coverage()
+        response.success = True
+        response.message = f"cleared {n} views"
+        self.get_logger().info(f"~/reset: {response.message}")
+        return response
+
+    def _on_set_parameters(self, changes: list[Parameter]) -> Any:
+        values, result = check_update(self.params, changes)
+        if values is not None:
+            self.params = values
+        return result
+
+    def stop(self) -> None:
+        """Stop the detection worker and any solve waiting (for shutdown)."""
+        self._stopping.set()
+        self.worker.stop()
+
+
+def main(args: list[str] | None = None) -> int:
+    """Entry point of ``ros2 run artcal_ros calibrator`` (console script ``calibrator``)."""
+    rclpy.init(args=args)
+    try:
+        node = CalibratorNode()
+    except (ParameterError, ArtcalError) as e:
+        rclpy.logging.get_logger("calibrator").fatal(f"refusing to start: {e}")
+        rclpy.try_shutdown()
+        return 2
+    executor = MultiThreadedExecutor(num_threads=4)
+    executor.add_node(node)
+    try:
+        executor.spin()
+    except (KeyboardInterrupt, ExternalShutdownException):
+        pass
+    finally:
+        node.stop()
+        executor.shutdown(timeout_sec=2.0)
+        node.destroy_node()
+        rclpy.try_shutdown()
+    return 0
+
+
+if __name__ == "__main__":
+    sys.exit(main())

@@ -1,0 +1,82 @@
+"""A worker thread that always processes the newest item and drops the rest.
+
+Camera frames arrive faster than detection can keep up with on a small
+machine. Queueing them would grow without bound and make the overlay lag
+further and further behind; instead a one-slot mailbox keeps only the newest
+frame, and every frame replaced before the worker took it is counted as
+dropped.
+"""
+
+from __future__ import annotations
+
+import threading
+from collections.abc import Callable
+from typing import Generic, TypeVar
+
+T = TypeVar("T")
+
+
+class LatestWorker(Generic[T]):
+    """Runs ``handler(item)`` on a daemon thread for the newest offered item only.
+
+    Args:
+        handler: called with each item taken; exceptions are passed to ``on_error``.
+        on_error: called with an exception the handler raised (the worker keeps going).
+        name: the thread's name.
+    """
+
+    def __init__(self, handler: Callable[[T], None],
+                 on_error: Callable[[BaseException], None], *, name: str = "latest") -> None:
+        self._handler = handler
+        self._on_error = on_error
+        self._cond = threading.Condition()
+        self._item: T | None = None
+        self._has_item = False
+        self._stopping = False
+        self._busy = False
+        self.dropped = 0
+        self.taken = 0
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def offer(self, item: T) -> bool:
+        """Hand over an item; return False if it replaced one not yet taken (a drop)."""
+        with self._cond:
+            replaced = self._has_item
+            if replaced:
+                self.dropped += 1
+            self._item = item
+            self._has_item = True
+            self._cond.notify()
+            return not replaced
+
+    @property
+    def busy(self) -> bool:
+        """Whether the handler is running now."""
+        return self._busy
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while not self._has_item and not self._stopping:
+                    self._cond.wait()
+                if self._stopping:
+                    return
+                item = self._item
+                self._item = None
+                self._has_item = False
+                self._busy = True
+                self.taken += 1
+            try:
+                self._handler(item)  # type: ignore[arg-type]
+            except Exception as e:
+                self._on_error(e)
+            finally:
+                self._busy = False
+
+    def stop(self, timeout: float = 1.0) -> None:
+        """Ask the thread to end and wait up to ``timeout`` seconds (it is a daemon)."""
+        with self._cond:
+            self._stopping = True
+            self._cond.notify()
+        self._thread.join(timeout)
