@@ -1,0 +1,237 @@
+"""Marker detection: candidate quads, board-aware decoding, sub-pixel corners and centres.
+
+Pipeline for one image:
+
+1. Candidate quads and ids from OpenCV's ArUco detector (both polarities when the
+   board has white-on-black markers), run on an 8-bit, contrast-stretched copy.
+2. Only ids on the configured board survive; duplicated ids are dropped.
+3. Each quad is refined from its border edges in linear intensity
+   (:mod:`artcal_ros.core.detect_edges`): sub-pixel lines fitted robustly to many
+   edge crossings per side, intersected into corners.
+4. Verification (:mod:`artcal_ros.core.detect_verify`): the border's polarity
+   must match the board, the code re-read on the refined quad must match the id
+   (few or no bit errors), and the marker must sit where its image neighbours
+   say it should on the board. A wrong id cannot reach the solver.
+5. Centres: the intersection of the refined quad's diagonals (exact under a
+   pinhole projection). With a camera model the corners are mapped to
+   undistorted pixels first and the centre mapped back.
+
+Pixel convention: OpenCV's, the centre of the top-left pixel is (0, 0).
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+from typing import Any
+
+import cv2
+import numpy as np
+
+from artcal_ros.core.board import Board
+from artcal_ros.core.detect_edges import refine_quads
+from artcal_ros.core.detect_lens import LensModel
+from artcal_ros.core.detect_verify import (
+    border_is_dark,
+    code_errors,
+    diagonal_centres,
+    neighbour_support,
+)
+from artcal_ros.core.detections import Detections
+from artcal_ros.core.errors import DetectionError
+
+__all__ = ["Detector", "DetectorConfig", "detect", "linearise", "to_gray8"]
+
+
+@dataclass(frozen=True)
+class DetectorConfig:
+    """Tuning of :class:`Detector`; the defaults suit printed boards and ordinary cameras.
+
+    Attributes:
+        gamma: exponent that maps encoded grey values to linear light
+            (``linear = (v / full_scale) ** gamma``); 2.2 for sRGB-like 8-bit
+            images, 1.0 for linear (e.g. raw 16-bit) data.
+        gamma_16bit: the same for 16-bit images (None: use ``gamma``).
+        refine_edges: False keeps the quad finder's corners (for comparisons only).
+        margin_px: edge profiles closer than this to a corner are skipped.
+        level_modules: half-width of the edge profile window, in modules.
+        curve_min_px: image sides at least this long may be fitted as parabolas
+            (lens distortion bends them) when no camera model is given.
+        max_bit_errors: most code cells (of bits^2) that may disagree with the
+            id when a marker is supported by a neighbour.
+        max_bit_errors_isolated: the same for a marker no neighbour can vouch
+            for; None rejects isolated markers outright.
+        neighbour_tolerance: how far (in marker sides) a neighbour may sit from
+            where this marker's own homography puts it.
+        min_side_px: quads with a shorter side are ignored.
+        adaptive_window_max: largest adaptive-threshold window of the quad finder.
+    """
+
+    gamma: float = 2.2
+    gamma_16bit: float | None = None
+    refine_edges: bool = True
+    margin_px: float = 2.5
+    level_modules: float = 0.4
+    curve_min_px: float = 60.0
+    max_bit_errors: int = 2
+    max_bit_errors_isolated: int | None = 0
+    neighbour_tolerance: float = 0.25
+    min_side_px: float = 6.0
+    adaptive_window_max: int = 33
+
+    def __post_init__(self) -> None:
+        if not self.gamma > 0:
+            raise DetectionError(f"DetectorConfig.gamma: {self.gamma} must be > 0 (2.2 for "
+                                 "sRGB-like images, 1.0 for linear data)")
+        if self.adaptive_window_max < 3:
+            raise DetectionError("DetectorConfig.adaptive_window_max must be >= 3")
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """(H, W) uint8/uint16/float from (H, W), (H, W, 1), (H, W, 3) BGR or (H, W, 4) BGRA."""
+    img = np.asarray(image)
+    if img.ndim == 3 and img.shape[2] == 1:
+        img = img[:, :, 0]
+    if img.ndim == 3 and img.shape[2] in (3, 4):
+        code = cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+        img = cv2.cvtColor(img, code)
+    if img.ndim != 2:
+        raise DetectionError(f"expected an (H, W) or (H, W, 3) image, got shape {img.shape}")
+    if img.dtype not in (np.uint8, np.uint16):
+        raise DetectionError(f"expected a uint8 or uint16 image, got {img.dtype}; "
+                             "convert it (e.g. scale floats to 0..255 and cast to uint8)")
+    return img
+
+
+def to_gray8(gray: np.ndarray) -> np.ndarray:
+    """An 8-bit copy for the quad finder, contrast-stretched so dark frames still threshold.
+
+    The stretch maps the 0.5th..99.5th percentile to 0..255 when that range is narrow.
+    """
+    g = gray
+    if g.dtype == np.uint16:
+        hi = float(np.percentile(g[::4, ::4], 99.9))
+        g = np.clip(g.astype(np.float32) * (255.0 / max(hi, 1.0)), 0, 255).astype(np.uint8)
+    lo, hi = np.percentile(g[::4, ::4], (0.5, 99.5))
+    if hi - lo < 120 and hi > lo:
+        scale = 230.0 / (hi - lo)
+        g = np.clip((g.astype(np.float32) - lo) * scale + 12.0, 0, 255).astype(np.uint8)
+    return g
+
+
+def linearise(gray: np.ndarray, gamma: float) -> np.ndarray:
+    """(H, W) float64 linear intensity in 0..1 from encoded grey values."""
+    full = 65535.0 if gray.dtype == np.uint16 else 255.0
+    if gray.dtype == np.uint8:
+        lut = (np.arange(256) / 255.0) ** gamma
+        return lut[gray]
+    return (gray.astype(np.float64) / full) ** gamma
+
+
+def _aruco_detector(board: Board, config: DetectorConfig) -> cv2.aruco.ArucoDetector:
+    p = cv2.aruco.DetectorParameters()
+    p.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_NONE
+    p.detectInvertedMarker = board.polarity != "black"
+    p.minMarkerPerimeterRate = 0.01
+    p.adaptiveThreshWinSizeMax = max(int(config.adaptive_window_max), 3)
+    p.minDistanceToBorder = 2
+    return cv2.aruco.ArucoDetector(board.dictionary, p)
+
+
+class Detector:
+    """A reusable marker detector for one board.
+
+    Args:
+        board: the calibration board (its dictionary, ids and polarity).
+        config: tuning, see :class:`DetectorConfig`.
+    """
+
+    def __init__(self, board: Board, config: DetectorConfig | None = None) -> None:
+        self.board = board
+        self.config = config or DetectorConfig()
+        self._aruco = _aruco_detector(board, self.config)
+
+    def detect(self, image: np.ndarray, camera: Any = None, *, source: str = "") -> Detections:
+        """Detect the board's markers in one image.
+
+        Args:
+            image: (H, W) uint8/uint16 grey or (H, W, 3) uint8 BGR.
+            camera: optional lens model, ``(K, dist, model)`` or any object with
+                ``K``, ``dist`` and ``model`` attributes (e.g. a previous
+                calibration). With it, edges are fitted as straight lines in
+                undistorted coordinates (a second, refining pass after a first
+                calibration).
+            source: recorded in the result (a file name, a bag message).
+
+        Returns:
+            :class:`Detections` with ids, corners (N, 4, 2), centres (N, 2) and
+            per-point sigmas, in pixels.
+        """
+        gray = to_gray(image)
+        h, w = gray.shape
+        gray8 = to_gray8(gray)
+        sharpness = float(cv2.Laplacian(gray8, cv2.CV_32F).var())
+        quads, ids = self._candidates(gray8)
+        if len(ids) == 0:
+            return replace(Detections.empty((w, h), source), sharpness=sharpness)
+
+        gamma = self.config.gamma
+        if gray.dtype == np.uint16 and self.config.gamma_16bit is not None:
+            gamma = self.config.gamma_16bit
+        lin = linearise(gray, gamma)
+        bits = self.board.bits
+
+        dark = border_is_dark(lin, quads, bits)
+        if self.board.polarity != "any":
+            expected = np.array([not self.board.is_inverted(int(i)) for i in ids])
+            keep = dark == expected
+            quads, ids, dark = quads[keep], ids[keep], dark[keep]
+
+        lens = LensModel.from_any(camera) if camera is not None else None
+        corners: np.ndarray
+        if self.config.refine_edges and len(ids):
+            fit = refine_quads(lin, quads, dark, bits, margin_px=self.config.margin_px,
+                               level_modules=self.config.level_modules,
+                               curve_min_px=self.config.curve_min_px,
+                               allow_curvature=lens is None, lens=lens)
+            moved = np.abs(fit.corners_px - quads).max(axis=(1, 2))
+            keep = fit.ok & (moved < 3.0)
+            corners, sigma = fit.corners_px[keep], fit.corner_sigma_px[keep]
+            ids, dark = ids[keep], dark[keep]
+        else:
+            corners, sigma = quads, np.full((len(ids), 4), np.nan)
+        corners = np.asarray(corners, dtype=np.float64)
+
+        errors = code_errors(lin, corners, dark, ids, self.board)
+        support = neighbour_support(corners, ids, self.board, self.config.neighbour_tolerance)
+        ok = (errors <= self.config.max_bit_errors) & (support > 0)
+        if self.config.max_bit_errors_isolated is not None:
+            ok |= (support == 0) & (errors <= self.config.max_bit_errors_isolated)
+        ok &= support >= 0
+        corners, sigma, ids = corners[ok], sigma[ok], ids[ok]
+
+        centres, centre_sigma = diagonal_centres(corners, sigma, lens)
+        order = np.argsort(ids)
+        return Detections(ids[order], corners[order], centres[order], (w, h),
+                          sigma[order], centre_sigma[order], sharpness, source)
+
+    def _candidates(self, gray8: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Quads (N, 4, 2) in board corner order and ids (N,) that belong to the board."""
+        corners, ids, _ = self._aruco.detectMarkers(gray8)
+        if ids is None or len(ids) == 0:
+            return np.zeros((0, 4, 2)), np.zeros(0, dtype=np.int64)
+        quads: np.ndarray = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)
+        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+        on_board = (ids >= self.board.first_id) & (ids <= int(self.board.ids[-1]))
+        quads, ids = quads[on_board], ids[on_board]
+        uniq, counts = np.unique(ids, return_counts=True)
+        single = np.isin(ids, uniq[counts == 1])
+        quads, ids = quads[single], ids[single]
+        sides = np.linalg.norm(quads - np.roll(quads, -1, axis=1), axis=2).min(axis=1)
+        big = sides >= self.config.min_side_px
+        return quads[big], ids[big]
+
+
+def detect(image: np.ndarray, board: Board, *, config: DetectorConfig | None = None,
+           camera: Any = None, source: str = "") -> Detections:
+    """Detect ``board``'s markers in ``image`` (see :meth:`Detector.detect`)."""
+    return Detector(board, config).detect(image, camera, source=source)

@@ -1,0 +1,82 @@
+"""A known lens model for detection: map pixels to undistorted pixels and back.
+
+Detection uses it on a second pass after a first calibration: border edges
+are fitted as straight lines in undistorted coordinates (where the marker's
+sides really are straight) and the corners and centres are mapped back.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from artcal_ros.core.errors import DetectionError
+
+_MODELS = ("plumb_bob", "rational_polynomial", "equidistant")
+_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
+
+
+@dataclass(frozen=True)
+class LensModel:
+    """Camera matrix and distortion of a lens.
+
+    Attributes:
+        K: (3, 3) float64 camera matrix, pixels.
+        dist: (n,) float64 distortion coefficients in OpenCV order.
+        model: ``plumb_bob``, ``rational_polynomial`` or ``equidistant``.
+    """
+
+    K: np.ndarray
+    dist: np.ndarray
+    model: str = "plumb_bob"
+
+    @classmethod
+    def from_any(cls, camera: Any) -> LensModel:
+        """From ``(K, dist, model)``, ``(K, dist)`` or an object with K/dist/model attributes."""
+        if isinstance(camera, LensModel):
+            return camera
+        if isinstance(camera, tuple | list):
+            K, dist = camera[0], camera[1]
+            model = camera[2] if len(camera) > 2 else "plumb_bob"
+        else:
+            K = getattr(camera, "K", getattr(camera, "camera_matrix", None))
+            dist = getattr(camera, "dist", getattr(camera, "dist_coeffs", None))
+            model = getattr(camera, "model", "plumb_bob")
+        if K is None or dist is None:
+            raise DetectionError("camera: expected (K, dist, model) or an object with K, "
+                                 "dist and model attributes")
+        K = np.asarray(K, dtype=np.float64).reshape(3, 3)
+        dist = np.asarray(dist, dtype=np.float64).ravel()
+        if model not in _MODELS:
+            raise DetectionError(f"camera model {model!r} is not one of {', '.join(_MODELS)}")
+        return cls(K, dist, str(model))
+
+    def undistort(self, pts_px: np.ndarray) -> np.ndarray:
+        """(N, 2) image pixels -> (N, 2) undistorted pixels (same K)."""
+        p = np.asarray(pts_px, dtype=np.float64).reshape(-1, 1, 2)
+        if len(p) == 0:
+            return np.zeros((0, 2))
+        if self.model == "equidistant":
+            out = cv2.fisheye.undistortPoints(p, self.K, self.dist[:4], P=self.K,
+                                              criteria=_CRITERIA)
+        else:
+            out = cv2.undistortPointsIter(p, self.K, self.dist, None, self.K,  # type: ignore
+                                          _CRITERIA)
+        return np.asarray(out, dtype=np.float64).reshape(-1, 2)
+
+    def distort(self, pts_px: np.ndarray) -> np.ndarray:
+        """(N, 2) undistorted pixels -> (N, 2) image pixels."""
+        p = np.asarray(pts_px, dtype=np.float64).reshape(-1, 2)
+        if len(p) == 0:
+            return np.zeros((0, 2))
+        Kinv = np.linalg.inv(self.K)
+        xy = (np.c_[p, np.ones(len(p))] @ Kinv.T)[:, :2]
+        if self.model == "equidistant":
+            out = cv2.fisheye.distortPoints(xy.reshape(-1, 1, 2), self.K, self.dist[:4])
+        else:
+            obj = np.c_[xy, np.ones(len(xy))].reshape(-1, 1, 3)
+            out, _ = cv2.projectPoints(obj, np.zeros(3), np.zeros(3), self.K, self.dist)
+        return np.asarray(out, dtype=np.float64).reshape(-1, 2)

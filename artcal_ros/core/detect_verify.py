@@ -1,0 +1,184 @@
+"""Checks that keep a wrong id away from the solver, and marker centres.
+
+A marker is kept only when (a) its border has the polarity the board prints
+for that id, (b) the code re-read on the refined quad agrees with the id's
+pattern in almost every cell, and (c) its image neighbours sit where its own
+homography puts them on the board. A false decode in clutter fails (b) or (c);
+a wrong id inside the board fails (c).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from artcal_ros.core.board import Board
+from artcal_ros.core.detect_edges import bilinear
+from artcal_ros.core.detect_lens import LensModel
+
+
+def homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """(M, 3, 3) homographies mapping src (M, 4, 2) onto dst (M, 4, 2) (batched DLT, h33 = 1)."""
+    M = len(src)
+    A = np.zeros((M, 8, 8))
+    b = np.zeros((M, 8))
+    x, y = src[..., 0], src[..., 1]
+    u, v = dst[..., 0], dst[..., 1]
+    A[:, 0::2, 0] = x
+    A[:, 0::2, 1] = y
+    A[:, 0::2, 2] = 1.0
+    A[:, 0::2, 6] = -x * u
+    A[:, 0::2, 7] = -y * u
+    A[:, 1::2, 3] = x
+    A[:, 1::2, 4] = y
+    A[:, 1::2, 5] = 1.0
+    A[:, 1::2, 6] = -x * v
+    A[:, 1::2, 7] = -y * v
+    b[:, 0::2] = u
+    b[:, 1::2] = v
+    with np.errstate(all="ignore"):
+        h = np.linalg.solve(A + 1e-12 * np.eye(8), b[..., None])[..., 0]
+    return np.concatenate([h, np.ones((M, 1))], axis=1).reshape(M, 3, 3)
+
+
+def apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Apply (M, 3, 3) homographies to points (M, P, 2) -> (M, P, 2)."""
+    q = np.einsum("mij,mpj->mpi", H[:, :, :2], pts) + H[:, None, :, 2]
+    with np.errstate(all="ignore"):
+        return q[..., :2] / q[..., 2:3]
+
+
+def _module_homographies(corners: np.ndarray, bits: int) -> np.ndarray:
+    """Homographies from module coordinates (0..bits+2, x right, y down) to the image."""
+    n = bits + 2.0
+    square = np.array([[0.0, 0.0], [n, 0.0], [n, n], [0.0, n]])
+    return homographies(np.broadcast_to(square, corners.shape).copy(), corners)
+
+
+def _ring(s: np.ndarray, near: float, far: float) -> np.ndarray:
+    """Points (4 len(s), 2) on the four lines x or y = near / far, at positions s."""
+    a, b = np.full_like(s, near), np.full_like(s, far)
+    return np.concatenate([np.c_[s, a], np.c_[s, b], np.c_[a, s], np.c_[b, s]])
+
+
+def border_is_dark(lin: np.ndarray, quads: np.ndarray, bits: int) -> np.ndarray:
+    """(M,) bool: whether each quad's border band is darker than the ring just outside it."""
+    if len(quads) == 0:
+        return np.zeros(0, dtype=bool)
+    n = bits + 2.0
+    H = _module_homographies(quads, bits)
+    s = np.linspace(0.5, n - 0.5, 4 * (bits + 2))
+    ring_in = _ring(s, 0.5, n - 0.5)
+    ring_out = _ring(s, -0.5, n + 0.5)
+    pin = apply_h(H, np.broadcast_to(ring_in, (len(quads), *ring_in.shape)))
+    pout = apply_h(H, np.broadcast_to(ring_out, (len(quads), *ring_out.shape)))
+    vin = np.median(bilinear(lin, pin[..., 0], pin[..., 1]), axis=1)
+    vout = np.median(bilinear(lin, pout[..., 0], pout[..., 1]), axis=1)
+    return np.asarray(vin < vout)
+
+
+def code_errors(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, ids: np.ndarray,
+                board: Board) -> np.ndarray:
+    """(M,) int: modules (border and code) whose brightness disagrees with the id's pattern.
+
+    Each module is read as the mean of 3 x 3 samples in its central half and
+    classified against the midpoint of the expected-white and expected-black
+    means. A quad whose expected classes are not separated counts as all wrong.
+    """
+    M = len(ids)
+    if M == 0:
+        return np.zeros(0, dtype=np.intp)
+    n = board.bits + 2
+    H = _module_homographies(corners, board.bits)
+    sub = (np.arange(3) - 1.0) * 0.25
+    cx, cy = np.meshgrid(np.arange(n) + 0.5, np.arange(n) + 0.5)  # cy: row, cx: col
+    px = (cx[..., None, None] + sub[None, None, None, :]).repeat(3, axis=2)
+    py = (cy[..., None, None] + sub[None, None, :, None]).repeat(3, axis=3)
+    grid = np.stack([px.ravel(), py.ravel()], axis=1)  # (n*n*9, 2), module-major
+    pts = apply_h(H, np.broadcast_to(grid, (M, *grid.shape)))
+    vals = bilinear(lin, pts[..., 0], pts[..., 1]).reshape(M, n * n, 9).mean(axis=2)
+    expect_white = np.stack([board.marker_modules(int(i)).ravel() for i in ids])
+    errors = np.full(M, n * n, dtype=np.intp)
+    for m in range(M):
+        white, black = vals[m, expect_white[m]], vals[m, ~expect_white[m]]
+        if len(white) == 0 or len(black) == 0:
+            continue
+        thr = 0.5 * (white.mean() + black.mean())
+        if not white.mean() > black.mean():
+            continue
+        errors[m] = int((white <= thr).sum() + (black > thr).sum())
+    return errors
+
+
+def neighbour_support(corners: np.ndarray, ids: np.ndarray, board: Board,
+                      tolerance: float) -> np.ndarray:
+    """(M,) int: how many image neighbours confirm each marker's position on the board.
+
+    Each marker's homography (board plane -> image, from its own four corners)
+    predicts where every marker within about three marker sides in the image
+    should be. A neighbour within ``tolerance`` marker sides of its prediction
+    supports the marker; one further away contradicts it. Returns the support
+    count, 0 for a marker without neighbours, or -1 where contradictions are at
+    least as many as confirmations (the marker, or its neighbours, has a wrong id).
+    """
+    M = len(ids)
+    if M == 0:
+        return np.zeros(0, dtype=np.intp)
+    obj = board.object_corners(ids)[:, :, :2]
+    H = homographies(obj, corners)
+    centres_img = corners.mean(axis=1)
+    size = np.sqrt(np.abs(_quad_area(corners)))
+    obj_centres = obj.mean(axis=1)
+    pred = apply_h(H, np.broadcast_to(obj_centres, (M, M, 2)))  # (i, j): j predicted by i
+    # predict from the marker's diagonal centre so perspective does not count as an error
+    actual = diagonal_centres(corners, np.zeros((M, 4)), None)[0]
+    err = np.linalg.norm(pred - actual[None, :, :], axis=2) / size[:, None]
+    dist = np.linalg.norm(centres_img[:, None, :] - centres_img[None, :, :], axis=2)
+    near = (dist < 3.0 * size[:, None]) & ~np.eye(M, dtype=bool)
+    agree = (near & (err < tolerance)).sum(axis=1)
+    disagree = (near & ~(err < tolerance)).sum(axis=1)
+    out = agree.astype(np.intp)
+    out[(disagree > 0) & (disagree >= agree)] = -1
+    return out
+
+
+def _quad_area(q: np.ndarray) -> np.ndarray:
+    x, y = q[..., 0], q[..., 1]
+    return 0.5 * (x * np.roll(y, -1, axis=-1) - np.roll(x, -1, axis=-1) * y).sum(axis=-1)
+
+
+def diagonal_centres(corners: np.ndarray, corner_sigma: np.ndarray,
+                     lens: LensModel | None) -> tuple[np.ndarray, np.ndarray]:
+    """Marker centres as the intersection of the quad diagonals, and their 1-sigma errors.
+
+    Under a pinhole projection the image of a square's centre is exactly the
+    intersection of its image diagonals. With a lens model the corners are
+    undistorted first and the intersection is distorted back, so the result is
+    the true image of the centre; without one, the error is of second order in
+    the distortion's variation across the marker (a few thousandths of a pixel
+    for markers below ~100 px in ordinary lenses).
+
+    Args:
+        corners: (M, 4, 2) pixels, TL, TR, BR, BL.
+        corner_sigma: (M, 4) 1-sigma corner errors, pixels.
+        lens: optional lens model.
+
+    Returns:
+        centres (M, 2) pixels and sigmas (M,) pixels (the sigma of the mean of
+        four independent corners, exact for a parallelogram).
+    """
+    M = len(corners)
+    if M == 0:
+        return np.zeros((0, 2)), np.zeros(0)
+    q = corners if lens is None else lens.undistort(corners.reshape(-1, 2)).reshape(M, 4, 2)
+    h = np.concatenate([q, np.ones((M, 4, 1))], axis=2)
+    d1 = np.cross(h[:, 0], h[:, 2])
+    d2 = np.cross(h[:, 1], h[:, 3])
+    c = np.cross(d1, d2)
+    with np.errstate(all="ignore"):
+        centres = c[:, :2] / c[:, 2:3]
+    bad = ~np.isfinite(centres).all(axis=1)
+    centres[bad] = q[bad].mean(axis=1)
+    if lens is not None:
+        centres = lens.distort(centres)
+    sigma = 0.5 * np.sqrt(np.mean(np.asarray(corner_sigma, dtype=np.float64) ** 2, axis=1))
+    return centres, sigma
