@@ -1,0 +1,359 @@
+"""sensor_msgs/Image and CompressedImage <-> numpy, without cv_bridge and without ROS.
+
+Duck-typed: any object (or dict) with the message's fields works, whether an rclpy
+message, a message decoded from a bag, or :func:`numpy_to_image`'s output. ``data`` may
+be bytes, bytearray, memoryview, array.array, a list of ints or a numpy array.
+
+Output conventions (what detection and calibration take):
+
+- mono encodings -> (H, W) uint8 or uint16
+- colour encodings (rgb, bgr, rgba, bgra, bayer, yuv422) -> (H, W, 3) BGR, uint8 or uint16
+
+Row padding (``step`` > width * bytes per pixel) and big-endian 16-bit data are honoured.
+mono and bgr images come back as views of the message buffer, without a copy: they may be
+read-only and share memory with the message; copy before modifying them. Conversions
+(channel order, alpha, demosaicing, YUV, byte swapping) return new arrays.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from artcal_ros.core.errors import ImageFormatError
+
+__all__ = [
+    "ENCODINGS",
+    "ImageFormatError",
+    "compressed_to_numpy",
+    "image_to_numpy",
+    "numpy_to_image",
+    "to_gray",
+]
+
+
+@dataclass(frozen=True)
+class _Encoding:
+    kind: str  # "mono" | "bgr" | "rgb" | "bgra" | "rgba" | "bayer" | "uyvy" | "yuyv"
+    channels: int  # channels per pixel in the message buffer (2 bytes per pixel for yuv422)
+    depth: int  # bytes per channel
+    cv_code: int = -1  # OpenCV conversion to BGR, where one is needed
+
+    @property
+    def bytes_per_pixel(self) -> int:
+        return self.channels * self.depth
+
+
+# OpenCV names Bayer patterns by the 2x2 block starting at the second row and column, so
+# the ROS pattern RGGB is OpenCV's BG (the same mapping cv_bridge uses).
+_BAYER = {
+    "rggb": cv2.COLOR_BayerBG2BGR,
+    "bggr": cv2.COLOR_BayerRG2BGR,
+    "gbrg": cv2.COLOR_BayerGR2BGR,
+    "grbg": cv2.COLOR_BayerGB2BGR,
+}
+
+ENCODINGS: dict[str, _Encoding] = {
+    "mono8": _Encoding("mono", 1, 1),
+    "8UC1": _Encoding("mono", 1, 1),
+    "mono16": _Encoding("mono", 1, 2),
+    "16UC1": _Encoding("mono", 1, 2),
+    "bgr8": _Encoding("bgr", 3, 1),
+    "8UC3": _Encoding("bgr", 3, 1),
+    "rgb8": _Encoding("rgb", 3, 1),
+    "bgra8": _Encoding("bgra", 4, 1),
+    "8UC4": _Encoding("bgra", 4, 1),
+    "rgba8": _Encoding("rgba", 4, 1),
+    "bgr16": _Encoding("bgr", 3, 2),
+    "16UC3": _Encoding("bgr", 3, 2),
+    "rgb16": _Encoding("rgb", 3, 2),
+    "bgra16": _Encoding("bgra", 4, 2),
+    "rgba16": _Encoding("rgba", 4, 2),
+    **{f"bayer_{p}8": _Encoding("bayer", 1, 1, code) for p, code in _BAYER.items()},
+    **{f"bayer_{p}16": _Encoding("bayer", 1, 2, code) for p, code in _BAYER.items()},
+    "yuv422": _Encoding("uyvy", 2, 1, cv2.COLOR_YUV2BGR_UYVY),
+    "uyvy": _Encoding("uyvy", 2, 1, cv2.COLOR_YUV2BGR_UYVY),
+    "yuv422_yuy2": _Encoding("yuyv", 2, 1, cv2.COLOR_YUV2BGR_YUY2),
+    "yuyv": _Encoding("yuyv", 2, 1, cv2.COLOR_YUV2BGR_YUY2),
+}
+
+
+def _field(msg: Any, name: str) -> Any:
+    if isinstance(msg, dict):
+        if name not in msg:
+            raise ImageFormatError(f"the image has no field {name!r}")
+        return msg[name]
+    try:
+        return getattr(msg, name)
+    except AttributeError:
+        raise ImageFormatError(
+            f"the image has no field {name!r} (expected a sensor_msgs/Image-like object)"
+        ) from None
+
+
+def _int_field(msg: Any, name: str) -> int:
+    value = _field(msg, name)
+    try:
+        number = int(value)
+    except (TypeError, ValueError):
+        raise ImageFormatError(f"{name} must be an integer, not {value!r}") from None
+    if number < 0:
+        raise ImageFormatError(f"{name} must be >= 0, got {number}")
+    return number
+
+
+def lookup_encoding(encoding: Any) -> _Encoding:
+    """The layout of a ROS image encoding name (exact, or differing only in case).
+
+    Raises:
+        ImageFormatError: unknown encoding; the message lists the supported ones.
+    """
+    name = str(encoding)
+    found = ENCODINGS.get(name)
+    if found is None:
+        folded = {k.lower(): v for k, v in ENCODINGS.items()}
+        found = folded.get(name.lower())
+    if found is None:
+        raise ImageFormatError(
+            f"unknown encoding {name!r}; supported: {', '.join(ENCODINGS)}"
+        )
+    return found
+
+
+def _as_bytes(data: Any) -> np.ndarray:
+    """``data`` as a flat uint8 array, without a copy when the buffer allows it."""
+    if isinstance(data, np.ndarray):
+        if data.dtype == np.uint8 or data.dtype == np.int8:
+            return data.reshape(-1).view(np.uint8)
+        if data.dtype.kind in "iu" and data.size and (data.min() < 0 or data.max() > 255):
+            raise ImageFormatError("data holds values outside 0..255; expected bytes")
+        return data.astype(np.uint8).reshape(-1)
+    if isinstance(data, bytes | bytearray | memoryview):
+        return np.frombuffer(data, np.uint8)
+    try:
+        return np.frombuffer(memoryview(data).cast("B"), np.uint8)  # array.array and friends
+    except TypeError:
+        pass
+    try:
+        arr = np.asarray(data)
+    except (TypeError, ValueError) as err:
+        raise ImageFormatError(f"data is not a byte buffer ({type(data).__name__})") from err
+    if arr.dtype.kind not in "iu" or (arr.size and (arr.min() < 0 or arr.max() > 255)):
+        raise ImageFormatError(f"data is not a sequence of bytes ({type(data).__name__})")
+    return arr.astype(np.uint8).reshape(-1)
+
+
+def image_to_numpy(msg: Any) -> np.ndarray:
+    """Pixels of a sensor_msgs/Image as a numpy array.
+
+    Args:
+        msg: object or dict with ``height``, ``width``, ``encoding``, ``is_bigendian``,
+            ``step`` (bytes per row) and ``data`` (step * height bytes).
+
+    Returns:
+        (H, W) uint8/uint16 for mono encodings; (H, W, 3) BGR uint8/uint16 otherwise.
+
+    Raises:
+        ImageFormatError: naming the field that is wrong (encoding, step, data, width...).
+    """
+    height = _int_field(msg, "height")
+    width = _int_field(msg, "width")
+    encoding = str(_field(msg, "encoding"))
+    enc = lookup_encoding(encoding)
+    step = _int_field(msg, "step")
+    big_endian = bool(_int_field(msg, "is_bigendian"))
+    if height == 0 or width == 0:
+        raise ImageFormatError(f"the image is empty (height {height}, width {width})")
+    row_bytes = width * enc.bytes_per_pixel
+    if step < row_bytes:
+        raise ImageFormatError(
+            f"step {step} < width*bytes_per_pixel {row_bytes} for {encoding} "
+            f"(width {width}, {enc.bytes_per_pixel} bytes per pixel)"
+        )
+    if enc.kind in ("uyvy", "yuyv") and width % 2:
+        raise ImageFormatError(f"width {width} must be even for {encoding} (2 pixels share U, V)")
+    buf = _as_bytes(_field(msg, "data"))
+    if buf.size != step * height:
+        raise ImageFormatError(
+            f"data has {buf.size} bytes, expected step*height = {step * height} "
+            f"(step {step}, height {height})"
+        )
+    # A (H, row_bytes) view: the padding at the end of each row is skipped, not copied.
+    rows = buf.reshape(height, step)[:, :row_bytes]
+    if enc.depth == 2:
+        rows = rows.view(">u2" if big_endian else "<u2")
+        # to native order: a copy only when the bytes must be swapped
+        rows = rows.view(np.uint16) if rows.dtype.isnative else rows.astype(np.uint16)
+    pixels = rows.reshape(height, width, enc.channels)
+    return _to_bgr(pixels, enc)
+
+
+def _to_bgr(pixels: np.ndarray, enc: _Encoding) -> np.ndarray:
+    """(H, W, C) buffer pixels -> the output convention of image_to_numpy."""
+    if enc.kind == "mono":
+        return pixels[:, :, 0]
+    if enc.kind == "bgr":
+        return pixels
+    if enc.kind == "rgb":
+        return np.ascontiguousarray(pixels[:, :, ::-1])
+    if enc.kind == "bgra":
+        return np.ascontiguousarray(pixels[:, :, :3])
+    if enc.kind == "rgba":
+        return np.ascontiguousarray(pixels[:, :, 2::-1])
+    if enc.kind == "bayer":
+        return cv2.cvtColor(np.ascontiguousarray(pixels[:, :, 0]), enc.cv_code)
+    # yuv422: 2 bytes per pixel, chroma shared by pixel pairs; OpenCV takes (H, W, 2).
+    return cv2.cvtColor(np.ascontiguousarray(pixels), enc.cv_code)
+
+
+def to_gray(image: np.ndarray) -> np.ndarray:
+    """A single-channel image for detection, in the input's dtype.
+
+    Args:
+        image: (H, W) or (H, W, 1) as is; (H, W, 3) BGR or (H, W, 4) BGRA, uint8/uint16.
+
+    Returns:
+        (H, W) uint8 or uint16.
+    """
+    arr = np.asarray(image)
+    if arr.ndim == 3 and arr.shape[2] == 1:
+        arr = arr[:, :, 0]
+    if arr.ndim == 2:
+        return arr
+    if arr.ndim == 3 and arr.shape[2] in (3, 4):
+        code = cv2.COLOR_BGR2GRAY if arr.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+        return cv2.cvtColor(np.ascontiguousarray(arr), code)
+    raise ImageFormatError(
+        f"cannot make a grey image from an array of shape {arr.shape}; expected (H, W), "
+        "(H, W, 3) BGR or (H, W, 4) BGRA"
+    )
+
+
+def numpy_to_image(
+    image: np.ndarray, encoding: str = "mono8", stamp_ns: int = 0, frame_id: str = "camera"
+) -> dict[str, Any]:
+    """The fields of a sensor_msgs/Image holding ``image`` in ``encoding``.
+
+    Args:
+        image: (H, W) uint8/uint16 for mono encodings; (H, W, 3) BGR (or (H, W, 4) BGRA)
+            for colour ones, converted to the encoding's channel order; for bayer
+            encodings either (H, W) raw mosaic or (H, W, 3) BGR to be sampled; for yuv422
+            (H, W, 3) BGR uint8 with even W.
+        encoding: a ROS image encoding (see ENCODINGS).
+        stamp_ns: header stamp, nanoseconds since the epoch.
+        frame_id: header frame.
+
+    Returns:
+        dict with ``header`` {stamp {sec, nanosec}, frame_id}, ``height``, ``width``,
+        ``encoding``, ``is_bigendian`` (0), ``step`` (no padding) and ``data`` (bytes).
+
+    Raises:
+        ImageFormatError: the array's shape or dtype does not fit the encoding.
+    """
+    enc = lookup_encoding(encoding)
+    arr = np.asarray(image)
+    dtype = np.uint8 if enc.depth == 1 else np.uint16
+    if arr.dtype != dtype:
+        raise ImageFormatError(
+            f"{encoding} needs a {np.dtype(dtype).name} array, got {arr.dtype.name}"
+        )
+    packed = _pack(arr, enc, encoding)
+    height, width = arr.shape[:2]
+    stamp_ns = int(stamp_ns)
+    return {
+        "header": {
+            "stamp": {"sec": stamp_ns // 1_000_000_000, "nanosec": stamp_ns % 1_000_000_000},
+            "frame_id": frame_id,
+        },
+        "height": int(height),
+        "width": int(width),
+        "encoding": encoding,
+        "is_bigendian": 0,
+        "step": int(width) * enc.bytes_per_pixel,
+        "data": packed.astype(packed.dtype.newbyteorder("<"), copy=False).tobytes(),
+    }
+
+
+def _pack(arr: np.ndarray, enc: _Encoding, encoding: str) -> np.ndarray:
+    """``arr`` in the buffer layout of ``enc``: (H, W) or (H, W, channels)."""
+    colour = arr.ndim == 3 and arr.shape[2] in (3, 4)
+    if enc.kind == "mono":
+        if arr.ndim != 2:
+            raise ImageFormatError(f"{encoding} needs an (H, W) array, got shape {arr.shape}")
+        return arr
+    if enc.kind == "bayer" and arr.ndim == 2:
+        return arr  # already a mosaic
+    if not colour:
+        raise ImageFormatError(
+            f"{encoding} needs an (H, W, 3) BGR array, got shape {arr.shape}"
+        )
+    bgr = arr[:, :, :3]
+    if enc.kind == "bgr":
+        return bgr
+    if enc.kind == "rgb":
+        return bgr[:, :, ::-1]
+    if enc.kind in ("bgra", "rgba"):
+        opaque = np.iinfo(arr.dtype).max
+        alpha = arr[:, :, 3:] if arr.shape[2] == 4 else np.full_like(arr[:, :, :1], opaque)
+        body = bgr if enc.kind == "bgra" else bgr[:, :, ::-1]
+        return np.concatenate([body, alpha], axis=2)
+    if enc.kind == "bayer":
+        return _mosaic(bgr, encoding)
+    if arr.shape[1] % 2:
+        raise ImageFormatError(f"width {arr.shape[1]} must be even for {encoding}")
+    code = cv2.COLOR_BGR2YUV_UYVY if enc.kind == "uyvy" else cv2.COLOR_BGR2YUV_YUY2
+    return cv2.cvtColor(np.ascontiguousarray(bgr), code)
+
+
+def _mosaic(bgr: np.ndarray, encoding: str) -> np.ndarray:
+    """Sample a BGR image through the colour filter array named in ``encoding``."""
+    pattern = encoding.split("_")[1][:4].lower()  # e.g. "rggb"
+    channel = {"b": 0, "g": 1, "r": 2}
+    out = np.empty(bgr.shape[:2], bgr.dtype)
+    for i, letter in enumerate(pattern):
+        dy, dx = divmod(i, 2)
+        out[dy::2, dx::2] = bgr[dy::2, dx::2, channel[letter]]
+    return out
+
+
+def compressed_to_numpy(msg: Any) -> np.ndarray:
+    """Pixels of a sensor_msgs/CompressedImage (jpeg or png).
+
+    Args:
+        msg: object or dict with ``format`` ("jpeg", "png", or image_transport's
+            "<encoding>; <jpeg|png> compressed <encoding>") and ``data``.
+
+    Returns:
+        (H, W) uint8/uint16 for grey images, (H, W, 3) BGR uint8/uint16 for colour ones.
+
+    Raises:
+        ImageFormatError: unsupported format, or data that does not decode.
+    """
+    fmt = str(_field(msg, "format")).strip()
+    original, _, compressed = fmt.partition(";")
+    described = (compressed or original).strip().lower()
+    codec: str | None = next((c for c in ("jpeg", "jpg", "png") if c in described.split()), None)
+    if codec is None and described in ("", "jpeg", "jpg", "png"):
+        codec = described or None
+    if codec is None or "compresseddepth" in fmt.lower():
+        raise ImageFormatError(
+            f"format {fmt!r} is not supported; expected 'jpeg', 'png' or image_transport's "
+            "'<encoding>; jpeg compressed <encoding>'"
+        )
+    buf = _as_bytes(_field(msg, "data"))
+    image = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if buf.size else None
+    if image is None:
+        raise ImageFormatError(f"data ({buf.size} bytes) does not decode as a {codec} image")
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+    # image_transport names the channel order of the compressed pixels after the codec;
+    # the codec itself stores what it was given as BGR, so "compressed rgb8" is swapped.
+    target = described.split()[-1] if compressed else ""
+    if image.ndim == 3 and target.startswith("rgb"):
+        image = np.ascontiguousarray(image[:, :, ::-1])
+    if image.ndim == 3 and original.strip().lower().startswith(("mono", "8uc1", "16uc1")):
+        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    return image
