@@ -5,8 +5,9 @@
 Parameters:
   bag                   rosbag2 directory (metadata.yaml + .mcap) or a bare .mcap file
   rate                  1.0 plays at the recorded pace, 2.0 twice as fast; 0 ignores the
-                        recorded timing and sends each message once the previous one has
-                        been acknowledged by every reliable subscriber
+                        recorded timing and sends as fast as it can (reliable subscribers
+                        get every message; a keep-latest subscriber such as the calibrator
+                        only the newest, so give it a rate it can keep up with)
   loop                  start again at the end (until Ctrl-C)
   start_offset          seconds of the recording to skip at the start
   topics                recorded topics to play (empty: all)
@@ -163,7 +164,10 @@ class Player:
             except (ImportError, ValueError) as e:
                 self.log.warning(f"skipping {topic}: type {recorded[topic]!r} unavailable ({e})")
                 continue
-            qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+            # At rate 0 nothing paces the stream: keep every message until reliable
+            # subscribers have it, so they lose none however far behind they fall.
+            qos = QoSProfile(history=HistoryPolicy.KEEP_ALL if config.rate == 0
+                             else HistoryPolicy.KEEP_LAST, depth=10,
                              reliability=ReliabilityPolicy.RELIABLE,
                              durability=DurabilityPolicy.TRANSIENT_LOCAL
                              if _latched(self.reader, topic) else DurabilityPolicy.VOLATILE)
@@ -221,15 +225,15 @@ class Player:
                 pub = self.publishers[m.topic]
                 pub.publish(m.data)
                 self.played += 1
-                if rate == 0:
-                    pub.wait_for_all_acked(Duration(seconds=5))
             if not self.config.loop:
                 return
 
     def flush(self) -> None:
         """Wait (briefly) until reliable subscribers have every message sent."""
+        t0 = time.monotonic()
         for pub in self.publishers.values():
-            pub.wait_for_all_acked(Duration(seconds=2))
+            pub.wait_for_all_acked(Duration(seconds=1))
+        self.log.debug(f"flushed in {time.monotonic() - t0:.2f} s")
 
     def close(self) -> None:
         self.reader.close()

@@ -1,0 +1,167 @@
+"""Helpers for tests over real rclpy and DDS: an isolated domain, node processes, a probe node.
+
+Every wait polls a condition with a generous timeout (discovery takes 0.2-3.5 s here);
+a timeout only costs time when a test is failing anyway.
+"""
+
+from __future__ import annotations
+
+import os
+import random
+import signal
+import subprocess
+import threading
+import time
+from collections.abc import Callable, Sequence
+from pathlib import Path
+from typing import Any
+
+ROOT = Path(__file__).resolve().parents[2]
+BIN = ROOT / ".venv" / "bin"
+
+
+def configure_ros_env() -> None:
+    """Put this test session on its own DDS domain, on this machine only.
+
+    Called at conftest import, before any rclpy context exists; subprocesses inherit it.
+    """
+    if "ARTCAL_TEST_DOMAIN" not in os.environ:
+        # Domain ids above ~200 run out of UDP ports for many participants; 0 is the default
+        # everyone else uses.
+        os.environ["ARTCAL_TEST_DOMAIN"] = str(random.SystemRandom().randint(1, 200))
+    os.environ["ROS_DOMAIN_ID"] = os.environ["ARTCAL_TEST_DOMAIN"]
+    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+
+
+def wait_until(predicate: Callable[[], Any], timeout: float, what: str,
+               period: float = 0.05) -> Any:
+    """Poll ``predicate`` until it returns something truthy; AssertionError naming ``what``."""
+    deadline = time.monotonic() + timeout
+    while True:
+        value = predicate()
+        if value:
+            return value
+        if time.monotonic() > deadline:
+            raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+        time.sleep(period)
+
+
+class NodeProcess:
+    """One of our console scripts running in its own process group, output to files."""
+
+    def __init__(self, script: str, ros_args: Sequence[str], log_dir: Path,
+                 name: str | None = None) -> None:
+        self.name = name or script
+        self.out_path = log_dir / f"{self.name}.out"
+        self.err_path = log_dir / f"{self.name}.err"
+        self._out = open(self.out_path, "wb")  # noqa: SIM115 - closed in stop()
+        self._err = open(self.err_path, "wb")  # noqa: SIM115
+        self.proc = subprocess.Popen([str(BIN / script), "--ros-args", *ros_args], cwd=ROOT,
+                                     stdout=self._out, stderr=self._err,
+                                     start_new_session=True)
+
+    def output(self) -> str:
+        """stdout and stderr so far (rclpy logs to stderr)."""
+        for f in (self._out, self._err):
+            if not f.closed:
+                f.flush()
+        return self.out_path.read_text(errors="replace") + self.err_path.read_text(
+            errors="replace")
+
+    def wait(self, timeout: float) -> int:
+        """Wait for the process to end by itself; its exit status."""
+        try:
+            return self.proc.wait(timeout)
+        except subprocess.TimeoutExpired:
+            raise AssertionError(f"{self.name} still running after {timeout:g} s:\n"
+                                 f"{self.output()[-2000:]}") from None
+        finally:
+            self._close()
+
+    def stop(self, timeout: float = 10.0) -> int:
+        """SIGINT (SIGTERM can hang rclpy), then SIGKILL after ``timeout``; the exit status."""
+        if self.proc.poll() is None:
+            try:
+                os.killpg(self.proc.pid, signal.SIGINT)
+            except ProcessLookupError:
+                pass
+            try:
+                self.proc.wait(timeout)
+            except subprocess.TimeoutExpired:
+                os.killpg(self.proc.pid, signal.SIGKILL)
+                self.proc.wait()
+                self._close()
+                raise AssertionError(f"{self.name} ignored SIGINT for {timeout:g} s") from None
+        self._close()
+        return int(self.proc.returncode)
+
+    def _close(self) -> None:
+        for f in (self._out, self._err):
+            if not f.closed:
+                f.close()
+
+
+class Probe:
+    """An rclpy node spun on a background thread, with its own context.
+
+    Use :meth:`collect` to record a topic and :meth:`call` for a Trigger-like service.
+    """
+
+    def __init__(self, name: str = "artcal_test_probe") -> None:
+        import rclpy
+        from rclpy.context import Context
+        from rclpy.executors import SingleThreadedExecutor
+
+        self.context = Context()
+        rclpy.init(context=self.context)
+        self.node = rclpy.create_node(name, context=self.context)
+        self.executor = SingleThreadedExecutor(context=self.context)
+        self.executor.add_node(self.node)
+        self._lock = threading.Lock()
+        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
+        from rclpy.executors import ExternalShutdownException
+
+        try:
+            while self.context.ok():
+                self.executor.spin_once(timeout_sec=0.05)
+        except (ExternalShutdownException, RuntimeError):
+            pass
+
+    def collect(self, msg_type: type, topic: str, qos: Any) -> list[Any]:
+        """Subscribe and append every message to the returned list (thread-safe appends)."""
+        box: list[Any] = []
+        self.node.create_subscription(msg_type, topic, box.append, qos)
+        return box
+
+    def call(self, srv_type: type, name: str, request: Any = None,
+             timeout: float = 60.0) -> Any:
+        """Call a service once it is available; the response (AssertionError on timeout)."""
+        client = self.node.create_client(srv_type, name)
+        try:
+            if not client.wait_for_service(timeout_sec=20.0):
+                raise AssertionError(f"service {name} did not appear within 20 s")
+            future = client.call_async(request if request is not None else srv_type.Request())
+            wait_until(future.done, timeout, f"an answer from {name}")
+            return future.result()
+        finally:
+            self.node.destroy_client(client)
+
+    def close(self) -> None:
+        import rclpy
+
+        rclpy.try_shutdown(context=self.context)
+        self._thread.join(2.0)
+        self.executor.shutdown(timeout_sec=1.0)
+        self.node.destroy_node()
+
+
+def diagnostics_values(msgs: list[Any], node_name: str = "calibrator") -> dict[str, str]:
+    """The key/values of the newest DiagnosticStatus of ``node_name`` in ``msgs`` ({} if none)."""
+    for array in reversed(list(msgs)):
+        for status in array.status:
+            if status.name.startswith(f"{node_name}:"):
+                return {kv.key: kv.value for kv in status.values}
+    return {}

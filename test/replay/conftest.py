@@ -1,0 +1,19 @@
+"""Replay tests run on their own DDS domain, on this machine only (see ros_harness)."""
+
+from __future__ import annotations
+
+from collections.abc import Iterator
+
+import pytest
+
+from test.integration.ros_harness import Probe, configure_ros_env
+
+configure_ros_env()
+
+
+@pytest.fixture(scope="session")
+def probe() -> Iterator[Probe]:
+    """One probe node for the session (creating DDS participants costs time)."""
+    p = Probe()
+    yield p
+    p.close()
