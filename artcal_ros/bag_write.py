@@ -100,7 +100,8 @@ class BagWriter:
     Args:
         path: the bag directory to create (storage="directory") or the .mcap file
             (storage="mcap").
-        storage: "directory" (rosbag2 directory) or "mcap" (bare .mcap file).
+        storage: "directory" (rosbag2 directory) or "mcap" (bare .mcap file); by default
+            "mcap" when ``path`` ends in .mcap, else "directory".
         compression: chunk compression, "zstd" (rosbag2's default), "lz4" or "none".
         chunk_size: bytes of messages per chunk before it is compressed and written; a
             reader holds about one chunk in memory.
@@ -114,12 +115,14 @@ class BagWriter:
     def __init__(
         self,
         path: str | os.PathLike[str],
-        storage: Literal["directory", "mcap"] = "directory",
+        storage: Literal["directory", "mcap"] | None = None,
         *,
         compression: Literal["zstd", "lz4", "none"] = "zstd",
         chunk_size: int = 768 * 1024,
         overwrite: bool = False,
     ) -> None:
+        if storage is None:
+            storage = "mcap" if str(path).endswith(".mcap") else "directory"
         if storage not in ("directory", "mcap"):
             raise BagError(f"storage must be 'directory' or 'mcap', not {storage!r}")
         if compression not in _COMPRESSION:
@@ -127,7 +130,7 @@ class BagWriter:
                 f"compression must be one of {sorted(_COMPRESSION)}, not {compression!r}"
             )
         self.path = Path(path).expanduser()
-        self.storage = storage
+        self.storage: str = storage
         if self.path.exists() or self.path.is_symlink():
             if not overwrite:
                 raise BagError(

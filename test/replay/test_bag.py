@@ -147,6 +147,29 @@ def test_round_trip_bare_mcap(tmp_path: Path) -> None:
     check_round_trip(bag, written)
 
 
+def test_storage_follows_the_suffix_by_default(tmp_path: Path) -> None:
+    with BagWriter(tmp_path / "a.mcap") as w, BagWriter(tmp_path / "b") as v:
+        w.write("/i", IMAGE, T0, {})
+        v.write("/i", IMAGE, T0, {})
+    assert (tmp_path / "a.mcap").is_file() and (tmp_path / "b" / "metadata.yaml").is_file()
+
+
+def test_messages_come_in_log_time_order_across_chunks(tmp_path: Path) -> None:
+    """Chunks whose time ranges overlap are merged, as `ros2 bag play` orders them."""
+    rng = np.random.default_rng(2)
+    stamps = [int(t) for t in T0 + rng.permutation(60) * 1000]
+    bag = tmp_path / "shuffled.mcap"
+    with BagWriter(bag, chunk_size=4096, compression="none") as w:
+        for i, t in enumerate(stamps):
+            w.write("/image", IMAGE, t, {"height": 1, "width": 1, "step": 1,
+                                         "encoding": "mono8", "data": bytes([i]) * 3000})
+    with BagReader(bag) as r:
+        got = list(r)
+    assert [m.log_time_ns for m in got] == sorted(stamps)
+    # each message is still the one written at that time
+    assert all(stamps[m.decode().data[0]] == m.log_time_ns for m in got)
+
+
 def test_topic_filter_and_raw_bytes(tmp_path: Path) -> None:
     bag = tmp_path / "b"
     written = write_sample(bag, "directory")
