@@ -147,6 +147,32 @@ def test_round_trip_bare_mcap(tmp_path: Path) -> None:
     check_round_trip(bag, written)
 
 
+def test_unchunked_file_without_summary(tmp_path: Path) -> None:
+    """Another writer's layout: messages outside chunks and no index, read linearly."""
+    from mcap.writer import IndexType
+    from mcap.writer import Writer as McapWriter
+    from mcap_ros2._dynamic import serialize_dynamic
+
+    definition = message_definition(IMAGE).text
+    encode = serialize_dynamic(IMAGE, definition)[IMAGE]
+    path = tmp_path / "plain.mcap"
+    frames = [bytes([i]) * 12 for i in range(5)]
+    with open(path, "wb") as fh:
+        w = McapWriter(fh, use_chunking=False, index_types=IndexType.NONE, use_statistics=False,
+                       repeat_channels=False, repeat_schemas=False, use_summary_offsets=False)
+        w.start(profile="ros2")
+        sid = w.register_schema(IMAGE, "ros2msg", definition.encode())
+        cid = w.register_channel("/image", "cdr", sid)
+        for i, f in enumerate(frames):
+            w.add_message(cid, log_time=T0 + i, publish_time=T0 + i,
+                          data=encode({"height": 3, "width": 4, "step": 4, "data": f}))
+        w.finish()
+    with BagReader(path) as r:
+        assert r.topics == {"/image": IMAGE} and r.message_count is None
+        got = [m.decode() for m in r]
+    assert [bytes(m.data) for m in got] == frames
+
+
 def test_storage_follows_the_suffix_by_default(tmp_path: Path) -> None:
     with BagWriter(tmp_path / "a.mcap") as w, BagWriter(tmp_path / "b") as v:
         w.write("/i", IMAGE, T0, {})
