@@ -1,0 +1,414 @@
+"""Camera calibration from marker detections: the solve, outliers, uncertainty, selection.
+
+::
+
+    result = calibrate([dets, ...], board, image_size=(w, h), model="plumb_bob",
+                       points="centers")
+    result.camera_matrix, result.dist_coeffs, result.reprojection_rms_px
+
+The pipeline: correspondences per view (marker centres or corners; partial views are
+fine) -> unusable views set aside with the reason -> at most ``max_views`` diverse views
+kept -> degeneracy checks -> OpenCV solve -> outlier views, then outlier points, dropped
+and the solve repeated -> sanity checks (a camera that cannot be right is an error, never
+a result) -> uncertainty of every parameter, k-fold hold-out error and warnings where the
+data cannot pin a parameter down.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, field
+from typing import Any, NamedTuple
+
+import numpy as np
+
+from artcal_ros.core.board import Board
+from artcal_ros.core.calibrate_quality import (
+    Camera,
+    cross_validate,
+    fold_radius_px,
+    intrinsic_covariance,
+    parameter_effect_px,
+)
+from artcal_ros.core.calibrate_solve import (
+    DIST_NAMES,
+    MODELS,
+    Solution,
+    ViewPoints,
+    residuals,
+    solve,
+)
+from artcal_ros.core.calibrate_views import (
+    POINTS_MODES,
+    check_views,
+    select_views,
+    view_geometry,
+    view_points,
+    view_problem,
+)
+from artcal_ros.core.detections import Detections
+from artcal_ros.core.errors import CalibrationError
+
+__all__ = ["MODELS", "POINTS_MODES", "CalibrationResult", "DroppedView", "calibrate",
+           "select_views"]
+
+OUTLIER_SIGMAS = 5.0  # a point further than this many robust sigmas from its projection
+OUTLIER_FLOOR_PX = 0.5  # ... and at least this far is an outlier
+VIEW_OUTLIER_FACTOR = 3.0  # a view whose RMS exceeds this many times the median view's
+VIEW_OUTLIER_FRACTION = 0.25  # or with more than this share of outlier points is dropped
+MAX_RMS_PX = 3.0  # above this the board description or the lens model is wrong
+PARAM_EFFECT_WARN_PX = 0.5  # a parameter whose 1-sigma moves the image this much is weak
+MIN_COVERAGE = 0.6  # share of the image grid cells that should hold points
+
+
+class DroppedView(NamedTuple):
+    """A view left out of the solve: its position in the input list, its source, why."""
+
+    view_index: int
+    source: str
+    reason: str
+
+
+@dataclass(frozen=True)
+class CalibrationResult:
+    """A camera calibration and the figures that say how good it is.
+
+    Attributes:
+        camera_matrix: (3, 3) float64, pixels.
+        dist_coeffs: (n,) float64, OpenCV order: plumb_bob (k1, k2, p1, p2, k3),
+            rational_polynomial (k1, k2, p1, p2, k3, k4, k5, k6), equidistant (k1..k4).
+        model: ``plumb_bob`` | ``rational_polynomial`` | ``equidistant``.
+        image_size: (width, height), pixels.
+        points: ``centers`` or ``corners``: the correspondences used.
+        reprojection_rms_px: RMS of the point residual lengths, pixels.
+        reprojection_std_px: standard deviation of the residuals per coordinate (the
+            paper's figure: sqrt of the pooled x and y variance), pixels.
+        reprojection_max_px: largest residual length, pixels.
+        holdout_rms_px: k-fold cross-validation RMS over views, pixels (NaN if < 4 views).
+        views_used: positions in the input list of the views in the final solve.
+        views_dropped: the views left out, with the reason.
+        points_dropped: number of outlier points removed from the views used.
+        per_view_rms_px: (V,) RMS of each used view, aligned with ``views_used``.
+        rvecs, tvecs: (V, 3) T_cam_board of each used view (Rodrigues, metres).
+        std_devs: 1-sigma of each estimated parameter by name (fx, fy, cx, cy, k1, ...).
+        projection_uncertainty_rms_px, projection_uncertainty_max_px: the 1-sigma image
+            shift of the whole intrinsics' uncertainty over the image, pixels.
+        coverage: share of an 8 x 6 grid of the image holding at least one point.
+        warnings: what the data could not pin down and what to add.
+        points_px: (P, 2) image points of the final solve; residuals_px: (P, 2) measured
+            minus projected; point_view: (P,) their view's position in the input list.
+        outliers_px: (Q, 2) image points dropped as outliers.
+        solve_time_s: wall time of :func:`calibrate`, seconds.
+    """
+
+    camera_matrix: np.ndarray
+    dist_coeffs: np.ndarray
+    model: str
+    image_size: tuple[int, int]
+    points: str
+    reprojection_rms_px: float
+    reprojection_std_px: float
+    reprojection_max_px: float
+    holdout_rms_px: float
+    views_used: tuple[int, ...]
+    views_dropped: tuple[DroppedView, ...]
+    points_dropped: int
+    per_view_rms_px: np.ndarray
+    rvecs: np.ndarray
+    tvecs: np.ndarray
+    std_devs: dict[str, float]
+    projection_uncertainty_rms_px: float
+    projection_uncertainty_max_px: float
+    coverage: float
+    warnings: tuple[str, ...]
+    points_px: np.ndarray = field(repr=False)
+    residuals_px: np.ndarray = field(repr=False)
+    point_view: np.ndarray = field(repr=False)
+    outliers_px: np.ndarray = field(repr=False)
+    solve_time_s: float = 0.0
+
+    def summary_line(self) -> str:
+        """One line: model, intrinsics with 1-sigma, errors, views."""
+        K = self.camera_matrix
+        s = self.std_devs
+        return (f"{self.model} {self.image_size[0]}x{self.image_size[1]} ({self.points}): "
+                f"fx {K[0, 0]:.2f}±{s.get('fx', np.nan):.2f} "
+                f"fy {K[1, 1]:.2f}±{s.get('fy', np.nan):.2f} "
+                f"cx {K[0, 2]:.2f}±{s.get('cx', np.nan):.2f} "
+                f"cy {K[1, 2]:.2f}±{s.get('cy', np.nan):.2f} px; reprojection RMS "
+                f"{self.reprojection_rms_px:.3f} std {self.reprojection_std_px:.3f} max "
+                f"{self.reprojection_max_px:.3f} px; hold-out {self.holdout_rms_px:.3f} px; "
+                f"{len(self.views_used)} views used, {len(self.views_dropped)} dropped, "
+                f"{self.points_dropped} outlier points")
+
+    def to_summary_dict(self) -> dict[str, Any]:
+        """JSON-ready summary (the ``summary.json`` of ``artcal calibrate --report``)."""
+        K = self.camera_matrix
+        names = DIST_NAMES[self.model]
+        return {
+            "model": self.model,
+            "points": self.points,
+            "image_width": int(self.image_size[0]),
+            "image_height": int(self.image_size[1]),
+            "intrinsics": {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]),
+                           "cy": float(K[1, 2])},
+            "distortion": {n: float(v) for n, v in zip(names, self.dist_coeffs, strict=True)},
+            "std_devs": {k: float(v) for k, v in self.std_devs.items()},
+            "camera_matrix": K.tolist(),
+            "dist_coeffs": self.dist_coeffs.tolist(),
+            "reprojection_rms_px": self.reprojection_rms_px,
+            "reprojection_std_px": self.reprojection_std_px,
+            "reprojection_max_px": self.reprojection_max_px,
+            "holdout_rms_px": self.holdout_rms_px,
+            "projection_uncertainty_rms_px": self.projection_uncertainty_rms_px,
+            "projection_uncertainty_max_px": self.projection_uncertainty_max_px,
+            "coverage": self.coverage,
+            "points_used": len(self.points_px),
+            "points_dropped": int(self.points_dropped),
+            "views_used": [int(i) for i in self.views_used],
+            "per_view_rms_px": [float(e) for e in self.per_view_rms_px],
+            "views_dropped": [{"index": d.view_index, "source": d.source, "reason": d.reason}
+                              for d in self.views_dropped],
+            "warnings": list(self.warnings),
+            "solve_time_s": self.solve_time_s,
+        }
+
+
+def _stats(res: Sequence[np.ndarray]) -> tuple[float, float, float]:
+    r = np.concatenate([np.asarray(x).reshape(-1, 2) for x in res])
+    norms = np.linalg.norm(r, axis=1)
+    rms = float(np.sqrt(np.mean(norms ** 2)))
+    std = float(np.sqrt(0.5 * (np.var(r[:, 0]) + np.var(r[:, 1]))))
+    return rms, std, float(norms.max())
+
+
+def _reject(views: list[ViewPoints], res: list[np.ndarray], board: Board,
+            dropped: list[DroppedView], outliers: list[np.ndarray]) -> tuple[list[ViewPoints],
+                                                                           int]:
+    """One round of outlier rejection: whole views first, then single points.
+
+    Returns:
+        (the views kept, the number of points removed from them).
+    """
+    norms = [np.linalg.norm(r, axis=1) for r in res]
+    alln = np.concatenate(norms)
+    # Residual lengths of 2-D Gaussian noise follow a Rayleigh law: median = 1.1774 sigma.
+    sigma = float(np.median(alln)) / 1.1774
+    thr = max(OUTLIER_SIGMAS * sigma, OUTLIER_FLOOR_PX)
+    view_rms = np.array([float(np.sqrt(np.mean(n ** 2))) for n in norms])
+    frac = np.array([float(np.mean(n > thr)) for n in norms])
+    med = float(np.median(view_rms))
+    if med > MAX_RMS_PX:
+        raise CalibrationError(
+            f"the {len(views)} views cannot be fitted together (median view RMS {med:.1f} px): "
+            "the board parameters (board.cols, board.rows, board.marker_length, "
+            "board.marker_separation) or the camera_model are wrong, or the solve started "
+            "badly; add views tilted 20-45 degrees in different directions")
+    bad_view = (frac > VIEW_OUTLIER_FRACTION) | (
+        view_rms > max(VIEW_OUTLIER_FACTOR * med, OUTLIER_FLOOR_PX))
+    if bad_view.any():
+        # Drop only the worst tenth per round: a view that merely suffered from another
+        # view's pull on the solve comes back below the bar once that one is gone.
+        worst = np.argsort(-np.where(bad_view, view_rms, -np.inf))[:max(1, len(views) // 10)]
+        bad_view = np.zeros(len(views), dtype=bool)
+        bad_view[worst] = True
+        bad_view &= (frac > VIEW_OUTLIER_FRACTION) | (
+            view_rms > max(VIEW_OUTLIER_FACTOR * med, OUTLIER_FLOOR_PX))
+    if bad_view.any() and (~bad_view).sum() >= 3:
+        kept = []
+        for v, b, e, f in zip(views, bad_view, view_rms, frac, strict=True):
+            if b:
+                dropped.append(DroppedView(v.index, v.source,
+                                           f"outlier view: RMS {e:.2f} px vs median {med:.2f} "
+                                           f"px, {100 * f:.0f}% of its points off by > "
+                                           f"{thr:.2f} px"))
+            else:
+                kept.append(v)
+        return kept, 0
+    kept = []
+    removed = 0
+    for v, n in zip(views, norms, strict=True):
+        good = n <= thr
+        if good.all():
+            kept.append(v)
+            continue
+        outliers.append(v.image_points[~good])
+        sub = v.subset(good)
+        problem = view_problem(sub, board)
+        if problem is not None:
+            dropped.append(DroppedView(v.index, v.source,
+                                       f"after removing outlier points: {problem}"))
+            continue
+        removed += int((~good).sum())
+        kept.append(sub)
+    return kept, removed
+
+
+def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tuple[int, int],
+              model: str = "plumb_bob", points: str = "centers", max_views: int = 40,
+              k3: bool = False, cross_validation_folds: int = 5,
+              progress: Callable[[str], None] | None = None) -> CalibrationResult:
+    """Calibrate a camera from the markers found in several images.
+
+    Args:
+        detections: one :class:`Detections` per image (empty ones are fine).
+        board: the board the markers belong to.
+        image_size: (width, height) of the images, pixels.
+        model: ``plumb_bob`` | ``rational_polynomial`` | ``equidistant``.
+        points: ``centers`` (one point per marker) or ``corners`` (four per marker).
+        max_views: at most this many views are solved (diverse ones are chosen).
+        k3: also estimate k3 for ``plumb_bob`` (for strong distortion).
+        cross_validation_folds: folds of the hold-out error (0 to skip it).
+        progress: called with a short message at each stage.
+
+    Returns:
+        The calibration with its quality figures.
+
+    Raises:
+        CalibrationError: the views cannot support a solve (the message says what views
+            to add) or the solve did not give a camera that can be right.
+    """
+    start = time.monotonic()
+    say = progress or (lambda _msg: None)
+    if model not in MODELS:
+        raise CalibrationError(f"camera model {model!r} is not one of {', '.join(MODELS)}")
+    if points not in POINTS_MODES:
+        raise CalibrationError(f"points {points!r} is not one of {', '.join(POINTS_MODES)}")
+    w, h = int(image_size[0]), int(image_size[1])
+    if w <= 0 or h <= 0:
+        raise CalibrationError(f"image size {w}x{h} is not valid")
+    size = (w, h)
+
+    dropped: list[DroppedView] = []
+    usable: list[ViewPoints] = []
+    for i, det in enumerate(detections):
+        v = view_points(det, board, points, i)
+        problem = view_problem(v, board)
+        if problem is None:
+            usable.append(v)
+        else:
+            dropped.append(DroppedView(i, det.source, problem))
+    check_views(usable, size, [(d.view_index, d.reason) for d in dropped])
+    if len(usable) > max_views:
+        say(f"selecting {max_views} of {len(usable)} views")
+        keep = set(select_views(usable, size, max_views))
+        for k, v in enumerate(usable):
+            if k not in keep:
+                dropped.append(DroppedView(v.index, v.source, "not selected (similar views kept)"))
+        usable = [v for k, v in enumerate(usable) if k in keep]
+
+    say(f"solving {model} from {len(usable)} views")
+    views = usable
+    sol, _ = solve(views, size, model, k3=k3)
+    outliers: list[np.ndarray] = []
+    points_dropped = 0
+    for _round in range(8):
+        res = residuals(views, sol)
+        kept, removed = _reject(views, res, board, dropped, outliers)
+        if len(kept) == len(views) and removed == 0:
+            break
+        points_dropped += removed
+        check_views(kept, size, [(d.view_index, d.reason) for d in dropped])
+        views = kept
+        say(f"re-solving without outliers ({len(views)} views, {points_dropped} points dropped)")
+        sol, _ = solve(views, size, model, k3=k3, initial=sol)
+    res = residuals(views, sol)
+    rms, std, worst = _stats(res)
+    _sanity(sol, views, size, rms)
+
+    say("estimating uncertainty")
+    cov, _sigma = intrinsic_covariance(views, sol, res)
+    std_dev = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    effects, unc_rms, unc_max = parameter_effect_px(sol, size, cov)
+    holdout = float("nan")
+    if cross_validation_folds > 1:
+        say(f"{cross_validation_folds}-fold cross-validation")
+        holdout = cross_validate(views, sol, size, k3=k3, folds=cross_validation_folds)
+    geo = view_geometry(views, size, sol.camera_matrix)
+    coverage = float(np.mean(geo.cells.any(axis=0)))
+    warnings = _warnings(sol, size, views, std_dev, effects, rms, holdout, coverage)
+    per_view = np.array([float(np.sqrt(np.mean(np.sum(r ** 2, axis=1)))) for r in res])
+    return CalibrationResult(
+        camera_matrix=sol.camera_matrix, dist_coeffs=_full_dist(sol), model=model,
+        image_size=size, points=points, reprojection_rms_px=rms, reprojection_std_px=std,
+        reprojection_max_px=worst, holdout_rms_px=holdout,
+        views_used=tuple(v.index for v in views),
+        views_dropped=tuple(sorted(dropped, key=lambda d: d.view_index)),
+        points_dropped=points_dropped, per_view_rms_px=per_view, rvecs=sol.rvecs,
+        tvecs=sol.tvecs, std_devs={n: float(s) for n, s in zip(sol.free, std_dev, strict=True)},
+        projection_uncertainty_rms_px=unc_rms, projection_uncertainty_max_px=unc_max,
+        coverage=coverage, warnings=tuple(warnings),
+        points_px=np.concatenate([v.image_points for v in views]),
+        residuals_px=np.concatenate(res),
+        point_view=np.concatenate([np.full(len(v), v.index) for v in views]),
+        outliers_px=(np.concatenate(outliers) if outliers else np.zeros((0, 2))),
+        solve_time_s=time.monotonic() - start)
+
+
+def _full_dist(sol: Solution) -> np.ndarray:
+    """Distortion with every coefficient of the model (fixed ones as zeros)."""
+    out = np.zeros(len(DIST_NAMES[sol.model]))
+    out[: len(sol.dist_coeffs)] = sol.dist_coeffs
+    return out
+
+
+def _sanity(sol: Solution, views: Sequence[ViewPoints], size: tuple[int, int],
+            rms: float) -> None:
+    """Raise CalibrationError for a camera that cannot be right."""
+    w, h = size
+    K = sol.camera_matrix
+    if rms > MAX_RMS_PX:
+        raise CalibrationError(
+            f"the best {sol.model} fit leaves {rms:.2f} px RMS reprojection error (> "
+            f"{MAX_RMS_PX} px): check the board parameters (board.cols, board.rows, "
+            "board.marker_length, board.marker_separation) and the camera_model")
+    if not (0 <= K[0, 2] <= w and 0 <= K[1, 2] <= h):
+        raise CalibrationError(
+            f"the solve put the principal point at ({K[0, 2]:.0f}, {K[1, 2]:.0f}), outside the "
+            f"{w}x{h} image: a bad initialisation; add views tilted in different directions")
+    if not 0.5 < K[0, 0] / K[1, 1] < 2.0:
+        raise CalibrationError(
+            f"the solve gave fx/fy = {K[0, 0] / K[1, 1]:.2f}: a bad initialisation; add views "
+            "tilted in different directions")
+    cam = Camera(K, sol.dist_coeffs, sol.model, size)
+    fold = fold_radius_px(cam)
+    reach = max(float(np.max(np.linalg.norm(v.image_points - K[:2, 2], axis=1)))
+                for v in views)
+    if fold < reach:
+        raise CalibrationError(
+            f"the fitted {sol.model} distortion folds back {fold:.0f} px from the principal "
+            f"point, inside the observed points (out to {reach:.0f} px): the model cannot "
+            "describe this lens or the solve started badly; try another camera_model")
+
+
+def _warnings(sol: Solution, size: tuple[int, int], views: Sequence[ViewPoints],
+              std_dev: np.ndarray, effects: np.ndarray, rms: float, holdout: float,
+              coverage: float) -> list[str]:
+    """Say what the data cannot pin down, and what to add."""
+    out = []
+    for name, s, e in zip(sol.free, std_dev, effects, strict=True):
+        if not np.isfinite(e) or e > PARAM_EFFECT_WARN_PX:
+            out.append(f"{name} is poorly determined (1-sigma {s:.3g}, moves the image by up to "
+                       f"{e:.2f} px); add views tilted more steeply and markers in the image "
+                       "corners")
+    if coverage < MIN_COVERAGE:
+        out.append(f"points cover only {100 * coverage:.0f}% of the image (8x6 grid); "
+                   "distortion outside them is extrapolated: add views with markers near the "
+                   "edges and corners")
+    if np.isfinite(holdout) and holdout > 1.5 * rms + 0.05:
+        out.append(f"hold-out error {holdout:.3f} px is much larger than the fit's {rms:.3f} "
+                   "px: the views do not constrain the model well; add more varied views")
+    elif not np.isfinite(holdout) and len(views) >= 4:
+        out.append("cross-validation failed: some subsets of the views cannot be solved; "
+                   "add more varied views")
+    w, h = size
+    K = sol.camera_matrix
+    corner = max(float(np.hypot(x - K[0, 2], y - K[1, 2])) for x in (0, w) for y in (0, h))
+    fold = fold_radius_px(Camera(K, sol.dist_coeffs, sol.model, size))
+    if fold < corner:
+        out.append(f"the fitted distortion folds back {fold:.0f} px from the principal point, "
+                   "inside the image: do not trust the image corners; add views covering them")
+    if len(views) < 10:
+        out.append(f"only {len(views)} views; 15-20 are recommended")
+    return out

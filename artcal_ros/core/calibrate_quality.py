@@ -1,0 +1,224 @@
+"""Honest quality figures of a calibration: uncertainty, hold-out error, accuracy vs truth.
+
+- :func:`intrinsic_covariance`: covariance of the estimated intrinsics from the
+  Jacobian of the solve (poses eliminated by a Schur complement), scaled by the
+  measured residual variance. Works for every model, fisheye included.
+- :func:`cross_validate`: k-fold over views; each held-out view's pose is fitted
+  with the fold's intrinsics held fixed, and its points' error is reported.
+- :func:`projection_difference`: the accuracy metric against a known camera
+  (RMS and max over a dense grid of the whole image of the distance between where
+  the true and the estimated camera project the same rays).
+- :func:`fold_radius_px`: where a distortion model stops being one-to-one.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+from typing import Any
+
+import cv2
+import numpy as np
+
+from artcal_ros.core.calibrate_solve import (
+    DIST_NAMES,
+    INTRINSIC_NAMES,
+    Solution,
+    ViewPoints,
+    estimate_pose,
+    project,
+    project_jacobian,
+    solve,
+)
+
+_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 500, 1e-15)
+
+
+@dataclass(frozen=True)
+class Camera:
+    """Intrinsics of a camera: K (3, 3), dist (n,), model name, size (width, height)."""
+
+    K: np.ndarray
+    dist: np.ndarray
+    model: str
+    size: tuple[int, int]
+
+
+def as_camera(obj: Any) -> Camera:
+    """A :class:`Camera` from anything with (K | camera_matrix), (dist | dist_coeffs), model,
+    (size | image_size): a synth camera, a CalibrationResult, a Solution with a size."""
+    K = getattr(obj, "K", None)
+    K = getattr(obj, "camera_matrix", None) if K is None else K
+    dist = getattr(obj, "dist", None)
+    dist = getattr(obj, "dist_coeffs", None) if dist is None else dist
+    size = getattr(obj, "size", None)
+    size = getattr(obj, "image_size", None) if size is None else size
+    if K is None or dist is None or size is None:
+        raise TypeError(f"{type(obj).__name__} does not describe a camera")
+    return Camera(np.asarray(K, np.float64), np.asarray(dist, np.float64).ravel(),
+                  str(obj.model), (int(size[0]), int(size[1])))
+
+
+def unproject(cam: Camera, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Rays of image points: ((N, 3) rays with z = 1, (N,) bool where the inverse is exact).
+
+    The inverse counts as exact where re-projecting the ray lands within 1e-4 px.
+    """
+    pts = np.ascontiguousarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
+    if cam.model == "equidistant":
+        und = cv2.fisheye.undistortPoints(pts, cam.K, cam.dist.reshape(4, 1),
+                                          criteria=_UNDISTORT_CRITERIA)
+    else:
+        und = cv2.undistortPointsIter(pts, cam.K, cam.dist, np.eye(3), np.eye(3),
+                                      _UNDISTORT_CRITERIA)
+    rays = np.hstack([und.reshape(-1, 2), np.ones((len(pts), 1))])
+    back = project_rays(cam, rays)
+    ok = np.linalg.norm(back - pts.reshape(-1, 2), axis=1) < 1e-4
+    return rays, ok
+
+
+def project_rays(cam: Camera, rays: np.ndarray) -> np.ndarray:
+    """(N, 2) pixels where ``cam`` images camera-frame rays (N, 3)."""
+    return project(rays, np.zeros(3), np.zeros(3), cam.K, cam.dist, cam.model)
+
+
+def image_grid(size: tuple[int, int], step_px: float) -> np.ndarray:
+    """(N, 2) a regular grid over the whole image, corners and edges included, pixels."""
+    w, h = size
+    xs = np.linspace(0.0, w - 1.0, max(2, round((w - 1) / step_px) + 1))
+    ys = np.linspace(0.0, h - 1.0, max(2, round((h - 1) / step_px) + 1))
+    gx, gy = np.meshgrid(xs, ys)
+    return np.stack([gx.ravel(), gy.ravel()], axis=1)
+
+
+def projection_difference(true_cam: Any, est_cam: Any, *,
+                          step_px: float = 10.0) -> tuple[float, float]:
+    """Accuracy of an estimated camera against the true one, pixels: (RMS, max).
+
+    Over a grid of the true camera's whole image (every ``step_px`` pixels, corners
+    included) each pixel's ray is unprojected with the true camera and projected with the
+    estimated one; the figure is the distance between the two image points. Grid points
+    where the true model cannot be inverted exactly are skipped.
+    """
+    true = as_camera(true_cam)
+    est = as_camera(est_cam)
+    pix = image_grid(true.size, step_px)
+    rays, ok = unproject(true, pix)
+    d = np.linalg.norm(project_rays(est, rays[ok]) - pix[ok], axis=1)
+    d = d[np.isfinite(d)]
+    if len(d) == 0:
+        return float("nan"), float("nan")
+    return float(np.sqrt(np.mean(d ** 2))), float(d.max())
+
+
+def intrinsic_covariance(views: Sequence[ViewPoints], sol: Solution,
+                         res: Sequence[np.ndarray]) -> tuple[np.ndarray, float]:
+    """Covariance of the free intrinsics of a solve, in the order of ``sol.free``.
+
+    Args:
+        views: the views of the solve; res: their residuals, (M, 2) pixels each.
+
+    Returns:
+        (covariance (p, p), residual sigma per coordinate, pixels).
+    """
+    all_names = INTRINSIC_NAMES + DIST_NAMES[sol.model]
+    cols = [all_names.index(n) for n in sol.free]
+    p = len(cols)
+    U = np.zeros((p, p))
+    S = np.zeros((p, p))
+    n_obs = 0
+    for v, r, t in zip(views, sol.rvecs, sol.tvecs, strict=True):
+        A, B = project_jacobian(v.object_points, r, t, sol.camera_matrix, sol.dist_coeffs,
+                                sol.model)
+        A = A[:, cols]
+        U += A.T @ A
+        W = A.T @ B
+        V = B.T @ B
+        S += W @ np.linalg.pinv(V) @ W.T
+        n_obs += A.shape[0]
+    dof = max(n_obs - p - 6 * len(views), 1)
+    sse = float(sum(np.sum(r ** 2) for r in res))
+    sigma = float(np.sqrt(sse / dof))
+    info = U - S
+    try:
+        cov = np.linalg.inv(info) * sigma ** 2
+    except np.linalg.LinAlgError:
+        cov = np.full((p, p), np.inf)
+    return cov, sigma
+
+
+def parameter_effect_px(sol: Solution, image_size: tuple[int, int],
+                        cov: np.ndarray) -> tuple[np.ndarray, float, float]:
+    """How much the uncertainty moves the image, pixels.
+
+    Returns:
+        (per free parameter, the largest image shift its 1-sigma change causes over the
+         image (p,); RMS and max over the image of the 1-sigma projection uncertainty of
+         all parameters together).
+    """
+    cam = Camera(sol.camera_matrix, sol.dist_coeffs, sol.model, image_size)
+    pix = image_grid(image_size, max(image_size) / 24.0)
+    rays, ok = unproject(cam, pix)
+    rays = rays[ok]
+    if len(rays) == 0:
+        return np.full(len(sol.free), np.inf), float("inf"), float("inf")
+    all_names = INTRINSIC_NAMES + DIST_NAMES[sol.model]
+    cols = [all_names.index(n) for n in sol.free]
+    A, _ = project_jacobian(rays, np.zeros(3), np.zeros(3), sol.camera_matrix,
+                            sol.dist_coeffs, sol.model)
+    A = A[:, cols]
+    std = np.sqrt(np.maximum(np.diag(cov), 0.0))
+    per_param = np.array([
+        float(np.max(np.hypot(A[0::2, k], A[1::2, k]))) * std[k] for k in range(len(cols))])
+    var = np.einsum("ij,jk,ik->i", A, cov, A)
+    var_pt = np.maximum(var[0::2] + var[1::2], 0.0)
+    return per_param, float(np.sqrt(np.mean(var_pt))), float(np.sqrt(var_pt.max()))
+
+
+def cross_validate(views: Sequence[ViewPoints], sol: Solution, image_size: tuple[int, int],
+                   *, k3: bool, folds: int = 5, seed: int = 0) -> float:
+    """k-fold hold-out reprojection RMS over views, pixels (NaN with fewer than 4 views).
+
+    Each fold is solved from the other views (starting from ``sol``); every held-out view's
+    pose is then fitted with that fold's intrinsics fixed, and its points' errors pooled.
+    """
+    n = len(views)
+    if n < 4:
+        return float("nan")
+    k = min(folds, n)
+    order = np.random.default_rng(seed).permutation(n)
+    sq: list[np.ndarray] = []
+    for f in range(k):
+        test = set(order[f::k].tolist())
+        train = [v for i, v in enumerate(views) if i not in test]
+        try:
+            fold, _ = solve(train, image_size, sol.model, k3=k3, initial=sol)
+        except Exception:  # a fold that cannot be solved says the set is fragile
+            return float("inf")
+        for i in sorted(test):
+            v = views[i]
+            rvec, tvec = estimate_pose(v, fold.camera_matrix, fold.dist_coeffs, fold.model)
+            r = v.image_points - project(v.object_points, rvec, tvec, fold.camera_matrix,
+                                         fold.dist_coeffs, fold.model)
+            sq.append(np.sum(r ** 2, axis=1))
+    return float(np.sqrt(np.mean(np.concatenate(sq))))
+
+
+def fold_radius_px(cam: Camera, *, max_angle_deg: float = 89.0) -> float:
+    """Smallest distance from the principal point at which the model folds back, pixels.
+
+    Rays are traced outwards along 16 directions; a distortion model is only usable where
+    the image radius keeps growing with the ray's angle. Returns inf if it never folds
+    within ``max_angle_deg`` of the optical axis.
+    """
+    theta = np.radians(np.linspace(0.0, max_angle_deg, 400))[1:]
+    r = np.tan(theta)
+    fold = np.inf
+    for phi in np.linspace(0.0, 2 * np.pi, 16, endpoint=False):
+        rays = np.stack([r * np.cos(phi), r * np.sin(phi), np.ones_like(r)], axis=1)
+        px = project_rays(cam, rays)
+        dist = np.linalg.norm(px - cam.K[:2, 2], axis=1)
+        back = np.nonzero(np.diff(dist) <= 0)[0]
+        if len(back):
+            fold = min(fold, float(dist[back[0]]))
+    return fold

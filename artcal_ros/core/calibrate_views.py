@@ -1,0 +1,202 @@
+"""Views for calibration: correspondences, per-view checks, pose spread and view selection.
+
+A view needs only enough markers, never the whole board: every decoded marker
+names its own place on the board. A recording at 30 fps gives thousands of
+nearly identical frames; :func:`select_views` keeps a bounded, diverse set
+(tilt, position and distance of the board; coverage of the image; sharpness)
+so the solve stays fast without losing accuracy.
+"""
+
+from __future__ import annotations
+
+from collections.abc import Sequence
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from artcal_ros.core.board import Board
+from artcal_ros.core.calibrate_solve import ViewPoints
+from artcal_ros.core.detections import Detections
+from artcal_ros.core.errors import CalibrationError
+
+POINTS_MODES = ("centers", "corners")
+MIN_MARKERS_PER_VIEW = 6  # enough for a homography plus redundancy to see distortion
+MIN_VIEWS = 3  # focal lengths and principal point need three differently tilted views
+MIN_TILT_SPREAD_DEG = 5.0  # below this, every view shows the board at the same angle
+COVERAGE_GRID = (8, 6)  # cells across and down the image for coverage
+
+
+def view_points(det: Detections, board: Board, points: str, index: int) -> ViewPoints:
+    """The correspondences of one image.
+
+    Args:
+        det: the markers found in the image.
+        board: the board they belong to (ids not on it are ignored).
+        points: ``centers`` (one point per marker) or ``corners`` (four).
+        index: position of the view in the caller's list.
+    """
+    if points not in POINTS_MODES:
+        raise CalibrationError(f"points mode {points!r} is not one of {', '.join(POINTS_MODES)}")
+    keep = np.array([board.has_id(int(i)) for i in det.ids], dtype=bool)
+    if points == "centers":
+        img = det.centers_px[keep]
+        ok = np.all(np.isfinite(img), axis=1)
+        ids = det.ids[keep][ok]
+        return ViewPoints(index, det.source, board.object_centers(ids), img[ok], ids,
+                          det.sharpness)
+    img4 = det.corners_px[keep]
+    ok = np.all(np.isfinite(img4), axis=(1, 2))
+    ids = det.ids[keep][ok]
+    return ViewPoints(index, det.source, board.object_corners(ids).reshape(-1, 3),
+                      img4[ok].reshape(-1, 2), np.repeat(ids, 4), det.sharpness)
+
+
+def view_problem(view: ViewPoints, board: Board) -> str | None:
+    """Why this view cannot take part in a solve, or None if it can."""
+    ids = np.unique(view.marker_ids)
+    if len(ids) < MIN_MARKERS_PER_VIEW:
+        return f"{len(ids)} marker(s), needs at least {MIN_MARKERS_PER_VIEW}"
+    rc = np.array([board.cell_of(int(i)) for i in ids])
+    if len(np.unique(rc[:, 0])) < 2 or len(np.unique(rc[:, 1])) < 2:
+        return "its markers lie on one line of the board (needs two rows and two columns)"
+    return None
+
+
+def guess_camera_matrix(image_size: tuple[int, int]) -> np.ndarray:
+    """A rough pinhole camera (about 65 degrees across) for view geometry before a solve."""
+    w, h = image_size
+    f = 0.8 * max(w, h)
+    return np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+
+
+@dataclass(frozen=True)
+class ViewGeometry:
+    """Rough geometry of each view, from a guessed camera (for selection and degeneracy).
+
+    Attributes:
+        normals: (V, 3) unit board normals in the camera frame.
+        centres_px: (V, 2) the mean image position of each view's points, pixels.
+        log_distance: (V,) log of the camera-to-board distance, metres.
+        cells: (V, C) bool, the coverage-grid cells each view's points fall in.
+    """
+
+    normals: np.ndarray
+    centres_px: np.ndarray
+    log_distance: np.ndarray
+    cells: np.ndarray
+
+
+def view_geometry(views: Sequence[ViewPoints], image_size: tuple[int, int],
+                  camera_matrix: np.ndarray | None = None) -> ViewGeometry:
+    """Rough pose and coverage of each view; see :class:`ViewGeometry`."""
+    K = guess_camera_matrix(image_size) if camera_matrix is None else camera_matrix
+    w, h = image_size
+    gx, gy = COVERAGE_GRID
+    normals = np.zeros((len(views), 3))
+    centres = np.zeros((len(views), 2))
+    logd = np.zeros(len(views))
+    cells = np.zeros((len(views), gx * gy), dtype=bool)
+    for k, v in enumerate(views):
+        ok, rvec, tvec = cv2.solvePnP(v.object_points, v.image_points, K, np.zeros(5),
+                                      flags=cv2.SOLVEPNP_IPPE)
+        if ok:
+            R, _ = cv2.Rodrigues(rvec)
+            n = R[:, 2]
+            normals[k] = n if n[2] < 0 else -n  # facing the camera
+            logd[k] = np.log(max(float(np.linalg.norm(tvec)), 1e-6))
+        centres[k] = v.image_points.mean(axis=0)
+        cx = np.clip((v.image_points[:, 0] / w * gx).astype(int), 0, gx - 1)
+        cy = np.clip((v.image_points[:, 1] / h * gy).astype(int), 0, gy - 1)
+        cells[k, cy * gx + cx] = True
+    return ViewGeometry(normals, centres, logd, cells)
+
+
+def tilt_spread_deg(normals: np.ndarray) -> float:
+    """Largest angle between any two board normals, degrees. (V, 3) unit vectors."""
+    if len(normals) < 2:
+        return 0.0
+    cos = np.clip(normals @ normals.T, -1.0, 1.0)
+    return float(np.degrees(np.arccos(cos.min())))
+
+
+def check_views(views: Sequence[ViewPoints], image_size: tuple[int, int],
+                dropped: Sequence[tuple[int, str]]) -> None:
+    """Raise CalibrationError if ``views`` cannot pin down a camera; say what to add.
+
+    Args:
+        views: the usable views.
+        dropped: (index, reason) of the views already set aside, for the message.
+    """
+    if len(views) < MIN_VIEWS:
+        why = ""
+        if dropped:
+            reasons = sorted({r for _, r in dropped})
+            why = f" ({len(dropped)} view(s) unusable: {'; '.join(reasons[:3])})"
+        raise CalibrationError(
+            f"{len(views)} usable view(s){why}; at least {MIN_VIEWS} are needed, each with "
+            f">= {MIN_MARKERS_PER_VIEW} markers over two rows and columns of the board. Add "
+            "views with the board tilted 20-45 degrees in different directions")
+    geo = view_geometry(views, image_size)
+    spread = tilt_spread_deg(geo.normals)
+    if spread < MIN_TILT_SPREAD_DEG:
+        raise CalibrationError(
+            f"all {len(views)} views show the board at nearly the same angle (their board "
+            f"normals are within {spread:.1f} degrees of each other), which leaves the focal "
+            "length undetermined; add views with the board tilted 20-45 degrees left/right "
+            "and up/down")
+
+
+def select_views(views: Sequence[ViewPoints], image_size: tuple[int, int], max_views: int,
+                 *, camera_matrix: np.ndarray | None = None) -> list[int]:
+    """Choose at most ``max_views`` diverse views (positions into ``views``).
+
+    Greedy: start from the view with the most points, then repeatedly add the view that
+    best combines new image coverage (cells of an 8 x 6 grid not yet seen often), a pose
+    unlike every view chosen so far (board tilt, position in the image, distance) and
+    many points. Views much blurrier than the rest (sharpness below half the median,
+    where known) are left out while enough sharper ones remain.
+
+    Args:
+        views: candidate views, each usable (see :func:`view_problem`).
+        image_size: (width, height), pixels.
+        max_views: the bound.
+        camera_matrix: (3, 3) a better guess of the camera than the default, if known.
+
+    Returns:
+        Sorted positions into ``views``.
+    """
+    n = len(views)
+    if n <= max_views:
+        return list(range(n))
+    geo = view_geometry(views, image_size, camera_matrix)
+    counts = np.array([len(v) for v in views], dtype=np.float64)
+    sharp = np.array([v.sharpness for v in views], dtype=np.float64)
+    candidates = np.ones(n, dtype=bool)
+    known = np.isfinite(sharp)
+    if known.sum() > max_views:
+        blurred = known & (sharp < 0.5 * np.median(sharp[known]))
+        if (~blurred).sum() >= max_views:
+            candidates &= ~blurred
+    diag = float(np.hypot(*image_size))
+    # Feature scaling: 15 degrees of tilt ~ a quarter of the image ~ a factor 1.4 in distance.
+    feats = np.hstack([geo.normals * (1.0 / np.radians(15.0)),
+                       geo.centres_px / (0.25 * diag),
+                       geo.log_distance[:, None] / np.log(1.4)])
+    seen = np.zeros(geo.cells.shape[1])
+    cell_count = np.maximum(geo.cells.sum(axis=1), 1)
+    min_dist = np.full(n, np.inf)
+    chosen: list[int] = []
+    first = int(np.argmax(np.where(candidates, counts * cell_count, -1.0)))
+    pick = first
+    while True:
+        chosen.append(pick)
+        candidates[pick] = False
+        seen += geo.cells[pick]
+        min_dist = np.minimum(min_dist, np.linalg.norm(feats - feats[pick], axis=1))
+        if len(chosen) >= max_views or not candidates.any():
+            break
+        gain = (geo.cells / (1.0 + seen)).sum(axis=1) / cell_count
+        score = gain + 0.5 * np.minimum(min_dist, 3.0) + 0.2 * counts / counts.max()
+        pick = int(np.argmax(np.where(candidates, score, -np.inf)))
+    return sorted(chosen)

@@ -1,0 +1,234 @@
+"""camera_calibration_parsers YAML: write a calibration, read one back (ours or ROS's).
+
+The file is the one ``camera_info_manager`` loads and ROS's ``camera_calibration``
+writes for a monocular camera::
+
+    image_width: 640
+    image_height: 480
+    camera_name: camera
+    camera_matrix: {rows: 3, cols: 3, data: [fx, 0, cx, 0, fy, cy, 0, 0, 1]}
+    distortion_model: plumb_bob
+    distortion_coefficients: {rows: 1, cols: 5, data: [k1, k2, p1, p2, k3]}
+    rectification_matrix: {rows: 3, cols: 3, data: [identity]}
+    projection_matrix: {rows: 3, cols: 4, data: [P]}
+
+The projection matrix is computed as ROS's ``camera_calibration`` does for a
+monocular camera: the camera matrix of the undistorted image that keeps only valid
+pixels (``cv2.getOptimalNewCameraMatrix`` with alpha = 0) for the pinhole models,
+and K itself for ``equidistant`` (its fisheye rule with alpha = 0).
+"""
+
+from __future__ import annotations
+
+import os
+import tempfile
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+import yaml
+
+from artcal_ros.core.errors import ArtcalError, CalibrationError
+
+DISTORTION_LENGTHS = {"plumb_bob": 5, "rational_polynomial": 8, "equidistant": 4}
+
+
+@dataclass(frozen=True)
+class CameraInfoData:
+    """The content of a camera_info YAML file.
+
+    Attributes:
+        image_size: (width, height), pixels.
+        camera_name: the name in the file.
+        camera_matrix: (3, 3) K, pixels.
+        distortion_model: ``plumb_bob`` | ``rational_polynomial`` | ``equidistant`` | other.
+        dist_coeffs: (n,) distortion coefficients.
+        rectification_matrix: (3, 3) R.
+        projection_matrix: (3, 4) P, pixels.
+    """
+
+    image_size: tuple[int, int]
+    camera_name: str
+    camera_matrix: np.ndarray
+    distortion_model: str
+    dist_coeffs: np.ndarray
+    rectification_matrix: np.ndarray
+    projection_matrix: np.ndarray
+
+    @property
+    def model(self) -> str:
+        """Same as ``distortion_model`` (so the data reads like a camera)."""
+        return self.distortion_model
+
+
+def projection_matrix(camera_matrix: np.ndarray, dist_coeffs: np.ndarray, model: str,
+                      image_size: tuple[int, int]) -> np.ndarray:
+    """The monocular projection matrix P (3, 4) that ROS's camera_calibration would write.
+
+    Args:
+        camera_matrix: (3, 3) K, pixels.
+        dist_coeffs: (n,) in OpenCV order for ``model``.
+        model: ``plumb_bob`` | ``rational_polynomial`` | ``equidistant``.
+        image_size: (width, height), pixels.
+    """
+    K = np.asarray(camera_matrix, dtype=np.float64).reshape(3, 3)
+    P = np.zeros((3, 4))
+    if model == "equidistant":
+        P[:, :3] = K
+    else:
+        new_K, _ = cv2.getOptimalNewCameraMatrix(K, np.asarray(dist_coeffs, np.float64),
+                                                 (int(image_size[0]), int(image_size[1])), 0.0)
+        P[:, :3] = new_K
+    return P
+
+
+def _number(v: float) -> str:
+    # Shortest text that reads back to the same double; whole numbers as ROS writes them.
+    return str(int(v)) if v == int(v) and abs(v) < 1e15 else repr(v)
+
+
+def _matrix(rows: int, cols: int, values: np.ndarray) -> str:
+    data = ", ".join(_number(float(v)) for v in np.asarray(values, np.float64).ravel())
+    return f"  rows: {rows}\n  cols: {cols}\n  data: [{data}]\n"
+
+
+def camera_info_yaml(result: Any, camera_name: str = "camera") -> str:
+    """The YAML text of a calibration (a CalibrationResult or a :class:`CameraInfoData`)."""
+    K = np.asarray(result.camera_matrix, dtype=np.float64).reshape(3, 3)
+    model = str(getattr(result, "model", getattr(result, "distortion_model", "")))
+    D: np.ndarray = np.asarray(result.dist_coeffs, dtype=np.float64).ravel()
+    w, h = (int(result.image_size[0]), int(result.image_size[1]))
+    if model in DISTORTION_LENGTHS and len(D) < DISTORTION_LENGTHS[model]:
+        D = np.concatenate([D, np.zeros(DISTORTION_LENGTHS[model] - len(D))])
+    R = np.asarray(getattr(result, "rectification_matrix", np.eye(3)), np.float64).reshape(3, 3)
+    P = getattr(result, "projection_matrix", None)
+    P = projection_matrix(K, D, model, (w, h)) if P is None else np.asarray(P).reshape(3, 4)
+    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D)) and np.all(np.isfinite(P))):
+        raise CalibrationError("the calibration holds non-finite numbers; nothing was written")
+    name = str(camera_name)
+    if not name or any(c in name for c in ":#\n{}[],&*!|>'\"%@`"):
+        name = yaml.safe_dump(name, default_style='"').strip()
+    return (f"image_width: {w}\nimage_height: {h}\ncamera_name: {name}\n"
+            f"camera_matrix:\n{_matrix(3, 3, K.ravel())}"
+            f"distortion_model: {model}\n"
+            f"distortion_coefficients:\n{_matrix(1, len(D), D)}"
+            f"rectification_matrix:\n{_matrix(3, 3, R.ravel())}"
+            f"projection_matrix:\n{_matrix(3, 4, P.ravel())}")
+
+
+def write_camera_info_yaml(path: str | os.PathLike[str], result: Any,
+                           camera_name: str = "camera") -> Path:
+    """Write a calibration as camera_calibration_parsers YAML, atomically.
+
+    The text is built and checked first, written to a temporary file in the same
+    directory, flushed to disk and renamed over ``path``: a reader never sees a partial
+    file, and a failure leaves any existing file untouched.
+
+    Args:
+        path: the file to write (parent directories are created).
+        result: a CalibrationResult (or anything with camera_matrix, dist_coeffs, model,
+            image_size).
+        camera_name: the ``camera_name`` field.
+
+    Returns:
+        The path written.
+
+    Raises:
+        CalibrationError: the result holds non-finite numbers (nothing written).
+        ArtcalError: the file cannot be written.
+    """
+    text = camera_info_yaml(result, camera_name)
+    target = Path(path).expanduser()
+    try:
+        target.parent.mkdir(parents=True, exist_ok=True)
+        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp",
+                                   dir=str(target.parent))
+    except OSError as e:
+        raise ArtcalError(f"cannot write {target}: {e.strerror}") from None
+    try:
+        with os.fdopen(fd, "w") as f:
+            f.write(text)
+            f.flush()
+            os.fsync(f.fileno())
+        os.replace(tmp, target)
+    except OSError as e:
+        Path(tmp).unlink(missing_ok=True)
+        raise ArtcalError(f"cannot write {target}: {e.strerror}") from None
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+    return target
+
+
+def _read_matrix(doc: dict[str, Any], key: str, path: Path, shape: tuple[int, int] | None,
+                 ) -> np.ndarray:
+    block = doc.get(key)
+    if not isinstance(block, dict) or "data" not in block:
+        raise ArtcalError(f"{path}: '{key}' is missing or has no 'data'")
+    try:
+        data = np.asarray(block["data"], dtype=np.float64).ravel()
+        rows, cols = int(block.get("rows", 1)), int(block.get("cols", len(data)))
+    except (TypeError, ValueError):
+        raise ArtcalError(f"{path}: '{key}' holds something other than numbers") from None
+    if rows * cols != len(data) or (shape is not None and (rows, cols) != shape):
+        want = f" (expected {shape[0]}x{shape[1]})" if shape else ""
+        raise ArtcalError(f"{path}: '{key}' is {rows}x{cols} with {len(data)} values{want}")
+    return data.reshape(rows, cols)
+
+
+def read_camera_info_yaml(path: str | os.PathLike[str]) -> CameraInfoData:
+    """Read a camera_calibration_parsers YAML file (ours, or any ROS tool's).
+
+    The legacy key ``camera_model`` is accepted for ``distortion_model``.
+
+    Raises:
+        ArtcalError: the file is missing, not YAML, or lacks a field (named).
+    """
+    p = Path(path).expanduser()
+    try:
+        doc = yaml.safe_load(p.read_text())
+    except OSError as e:
+        raise ArtcalError(f"cannot read {p}: {e.strerror}") from None
+    except yaml.YAMLError as e:
+        raise ArtcalError(f"{p} is not valid YAML: {e}") from None
+    if not isinstance(doc, dict):
+        raise ArtcalError(f"{p}: expected a mapping of camera_info fields")
+    try:
+        w, h = int(doc["image_width"]), int(doc["image_height"])
+    except (KeyError, TypeError, ValueError):
+        raise ArtcalError(f"{p}: 'image_width' and 'image_height' must be integers") from None
+    model = doc.get("distortion_model", doc.get("camera_model"))
+    if not isinstance(model, str):
+        raise ArtcalError(f"{p}: 'distortion_model' is missing")
+    K = _read_matrix(doc, "camera_matrix", p, (3, 3))
+    D = _read_matrix(doc, "distortion_coefficients", p, None).ravel()
+    R = (_read_matrix(doc, "rectification_matrix", p, (3, 3))
+         if "rectification_matrix" in doc else np.eye(3))
+    P = (_read_matrix(doc, "projection_matrix", p, (3, 4))
+         if "projection_matrix" in doc else projection_matrix(K, D, model, (w, h)))
+    return CameraInfoData((w, h), str(doc.get("camera_name", "")), K, model, D, R, P)
+
+
+def camera_info_fields(data: Any, frame_id: str = "camera") -> dict[str, Any]:
+    """The fields of a sensor_msgs/CameraInfo message for a calibration.
+
+    Args:
+        data: a CalibrationResult or :class:`CameraInfoData`.
+        frame_id: the header's frame.
+
+    Returns:
+        dict with width, height, distortion_model, d, k, r, p (flat lists), header.
+    """
+    info = yaml.safe_load(camera_info_yaml(data, "camera"))
+    return {
+        "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": frame_id},
+        "width": int(info["image_width"]),
+        "height": int(info["image_height"]),
+        "distortion_model": str(info["distortion_model"]),
+        "d": [float(v) for v in info["distortion_coefficients"]["data"]],
+        "k": [float(v) for v in info["camera_matrix"]["data"]],
+        "r": [float(v) for v in info["rectification_matrix"]["data"]],
+        "p": [float(v) for v in info["projection_matrix"]["data"]],
+    }
