@@ -1,0 +1,161 @@
+"""Physically plausible rendering of the calibration board with exact ground truth.
+
+Used by the tests, the demo and the benchmarks::
+
+    from artcal_ros.core.synth import Camera, Photometry, random_poses, render_view
+    cam = Camera.preset("webcam")             # webcam | hd | wide | fisheye
+    rng = np.random.default_rng(1)
+    for rvec, tvec in random_poses(board, cam, 20, rng, partial_fraction=0.3):
+        view = render_view(board, cam, rvec, tvec, photometry=Photometry.clean(), rng=rng)
+        view.image, view.ids, view.corners_px, view.centers_px, view.inside
+
+How it works (why the truth is exact): every pixel is rendered by inverse
+mapping (pixel -> the lens model's exact inverse -> viewing ray -> board plane
+-> the board's analytic print), and the print's area coverage of each pixel is
+computed in closed form (see :mod:`artcal_ros.core.synth_render`), so edges
+sit where the forward model -- the one the truth points come from, identical to
+``cv2.projectPoints`` / ``cv2.fisheye.projectPoints`` -- puts them, to well
+under 0.01 px. Light, optics and sensor follow in linear light
+(:mod:`artcal_ros.core.synth_photometry`).
+
+Pose convention: T_cam_board (rvec Rodrigues, tvec metres), ``p_cam = R p_board + t``.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+from artcal_ros.core.board import Board
+from artcal_ros.core.errors import ParameterError
+from artcal_ros.core.synth_camera import PRESETS, Camera, project_points, rays_from_pixels
+from artcal_ros.core.synth_photometry import (
+    ENCODINGS,
+    Photometry,
+    blur,
+    clutter_image,
+    sense_and_encode,
+    vignette,
+)
+from artcal_ros.core.synth_poses import marker_truth, random_poses, smooth_poses
+from artcal_ros.core.synth_render import board_coverage
+from artcal_ros.core.synth_truth import (
+    Truth,
+    TruthFrame,
+    board_params,
+    frame_record,
+    load_truth,
+    write_truth,
+)
+
+__all__ = [
+    "ENCODINGS", "PRESETS", "Camera", "Photometry", "RenderedView", "Truth", "TruthFrame",
+    "board_params", "frame_record", "load_truth", "marker_truth", "project_points",
+    "random_poses", "rays_from_pixels", "render_linear", "render_view", "smooth_poses",
+    "write_truth",
+]
+
+
+@dataclass(frozen=True)
+class RenderedView:
+    """A rendered frame and its truth.
+
+    Attributes:
+        image: (H, W) uint8 (mono8), (H, W) uint16 (mono16) or (H, W, 3) uint8 (bgr8/rgb8).
+        encoding: the image's encoding name.
+        rvec, tvec: (3,) the pose T_cam_board (Rodrigues; metres).
+        ids: (N,) int64 every marker of the board, visible or not.
+        corners_px: (N, 4, 2) float64 true image corners TL TR BR BL, pixels (NaN behind
+            the camera).
+        centers_px: (N, 2) float64 true image of each marker's centre, pixels.
+        inside: (N,) bool, the marker's 4 corners are in front of the camera and in the image.
+        side_px: (N,) float64 shortest side of each marker's image, pixels.
+    """
+
+    image: np.ndarray
+    encoding: str
+    rvec: np.ndarray
+    tvec: np.ndarray
+    ids: np.ndarray
+    corners_px: np.ndarray
+    centers_px: np.ndarray
+    inside: np.ndarray
+    side_px: np.ndarray
+
+    def truth_record(self, *, file: str | None = None,
+                     stamp_ns: int | None = None) -> dict[str, object]:
+        """This frame's record for ``truth.json`` (see :mod:`artcal_ros.core.synth_truth`)."""
+        return frame_record(rvec=self.rvec, tvec=self.tvec, ids=self.ids,
+                            corners_px=self.corners_px, centers_px=self.centers_px,
+                            inside=self.inside, side_px=self.side_px, file=file,
+                            stamp_ns=stamp_ns)
+
+
+_LUMA = np.array([0.2126, 0.7152, 0.0722])   # linear RGB -> luminance
+
+
+def render_linear(board: Board, cam: Camera, rvec: np.ndarray, tvec: np.ndarray, *,
+                  photometry: Photometry | None = None, rng: np.random.Generator | None = None,
+                  color: bool = False) -> np.ndarray:
+    """Linear radiance reaching the sensor, after optics, before exposure and noise.
+
+    Args:
+        board, cam: what is seen and by what.
+        rvec, tvec: T_cam_board (Rodrigues vector; metres).
+        photometry: light and optics (default :meth:`Photometry.clean`). With
+            :meth:`Photometry.exact` the result is each pixel's white area fraction.
+        rng: source of the random lighting direction, clutter and blur direction.
+        color: return (H, W, 3) linear RGB instead of (H, W) luminance.
+
+    Returns:
+        (H, W) or (H, W, 3) float64; 1.0 is full scale at exposure 1.
+    """
+    phot = photometry if photometry is not None else Photometry.clean()
+    rng = rng if rng is not None else np.random.default_rng(0)
+    cov = board_coverage(board, cam, rvec, tvec)
+    # light falls off linearly across the board in a random direction
+    w_m, h_m = board.size_m
+    psi = rng.uniform(0, 2 * math.pi)
+    half_diag = 0.5 * math.hypot(w_m, h_m)
+    along = ((cov.bx - w_m / 2) * math.cos(psi) + (cov.by - h_m / 2) * math.sin(psi)) / half_diag
+    light = phot.illumination * np.clip(1.0 + phot.gradient * along, 0.0, None)
+    board_rad = cov.alpha * light * (phot.ink + (phot.paper - phot.ink) * cov.white)
+    if phot.clutter:
+        back = clutter_image(cam.size, rng) * phot.background
+    else:
+        back = np.full((cam.height, cam.width, 3), 0.15 * phot.background)
+    tint = np.asarray(phot.tint, dtype=np.float64)
+    if color:
+        lin = (board_rad[..., None] + (1.0 - cov.alpha)[..., None] * back) * tint
+    else:
+        lin = board_rad * float(tint @ _LUMA) + (1.0 - cov.alpha) * ((back * tint) @ _LUMA)
+    lin = blur(lin, phot, rng)
+    if phot.vignetting > 0:
+        v = vignette(cam.size, phot.vignetting)
+        lin = lin * (v[..., None] if color else v)
+    return np.asarray(lin)
+
+
+def render_view(board: Board, cam: Camera, rvec: np.ndarray, tvec: np.ndarray, *,
+                photometry: Photometry | None = None, rng: np.random.Generator | None = None,
+                encoding: str = "mono8") -> RenderedView:
+    """Render one frame (see :func:`render_linear`) and its truth.
+
+    Args:
+        encoding: ``mono8`` | ``mono16`` | ``bgr8`` | ``rgb8``.
+    """
+    if encoding not in ENCODINGS:
+        raise ParameterError(f"unknown encoding {encoding!r}; use one of {', '.join(ENCODINGS)}")
+    phot = photometry if photometry is not None else Photometry.clean()
+    rng = rng if rng is not None else np.random.default_rng(0)
+    rvec = np.asarray(rvec, dtype=np.float64).reshape(3)
+    tvec = np.asarray(tvec, dtype=np.float64).reshape(3)
+    color = encoding in ("bgr8", "rgb8")
+    lin = render_linear(board, cam, rvec, tvec, photometry=phot, rng=rng, color=color)
+    image = sense_and_encode(lin, phot, rng, encoding)
+    corners, centers, inside, side = marker_truth(board, cam, rvec, tvec)
+    return RenderedView(image=image, encoding=encoding, rvec=rvec, tvec=tvec,
+                        ids=board.ids.copy(), corners_px=corners, centers_px=centers,
+                        inside=inside, side_px=side)

@@ -1,0 +1,163 @@
+"""Ground truth of rendered frames: the ``truth.json`` file and its reader.
+
+Format::
+
+    {"camera": {"model", "K": 3x3, "dist": [...], "width", "height"},
+     "board": {"board.type", "board.dictionary", "board.cols", ...},
+     "photometry": {...}, "seed": int | null,
+     "frames": [{"file": "frame_0000.png" | "stamp_ns": int,
+                 "rvec": [3], "tvec": [3],             # T_cam_board, metres
+                 "markers": [{"id", "corners": [[x, y] x4], "center": [x, y],
+                              "inside": bool, "side_px": float}]}]}
+
+Image points are pixels (OpenCV convention), rounded to 1e-7 px. Markers behind
+the camera are left out; ``inside`` is False for markers not wholly in the image.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import tempfile
+from collections.abc import Sequence
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from artcal_ros.core.board import Board
+from artcal_ros.core.errors import ArtcalError
+from artcal_ros.core.synth_camera import Camera
+
+_DECIMALS = 7
+
+
+@dataclass(frozen=True)
+class TruthFrame:
+    """The truth of one frame.
+
+    Attributes:
+        file: image file name (PNG output) or None; stamp_ns: bag time stamp or None.
+        rvec, tvec: (3,) T_cam_board (Rodrigues vector; metres).
+        ids: (N,) int64 markers in front of the camera.
+        corners_px: (N, 4, 2) float64 true corners TL TR BR BL, pixels.
+        centers_px: (N, 2) float64 true image of each marker's centre, pixels.
+        inside: (N,) bool, marker wholly inside the image.
+        side_px: (N,) float64, shortest side of the marker's image, pixels.
+    """
+
+    file: str | None
+    stamp_ns: int | None
+    rvec: np.ndarray
+    tvec: np.ndarray
+    ids: np.ndarray
+    corners_px: np.ndarray
+    centers_px: np.ndarray
+    inside: np.ndarray
+    side_px: np.ndarray
+
+
+@dataclass(frozen=True)
+class Truth:
+    """A whole ``truth.json``: the camera, the board and every frame."""
+
+    camera: Camera
+    board: Board
+    frames: list[TruthFrame]
+    photometry: dict[str, Any]
+    seed: int | None
+
+    def by_file(self, name: str) -> TruthFrame:
+        """The frame of image file ``name`` (base name); ArtcalError if absent."""
+        base = os.path.basename(name)
+        for f in self.frames:
+            if f.file == base:
+                return f
+        raise ArtcalError(f"truth has no frame for image {base!r}")
+
+    def by_stamp(self, stamp_ns: int) -> TruthFrame:
+        """The frame with bag time stamp ``stamp_ns``; ArtcalError if absent."""
+        for f in self.frames:
+            if f.stamp_ns == stamp_ns:
+                return f
+        raise ArtcalError(f"truth has no frame with stamp {stamp_ns} ns")
+
+
+def board_params(board: Board) -> dict[str, Any]:
+    """The ``board.*`` parameters that rebuild ``board`` with :meth:`Board.from_params`."""
+    return {"board.type": "marker_grid", "board.dictionary": board.dictionary_name,
+            "board.cols": board.cols, "board.rows": board.rows,
+            "board.marker_length": board.marker_length,
+            "board.marker_separation": board.marker_separation,
+            "board.first_id": board.first_id, "board.polarity": board.polarity}
+
+
+def frame_record(*, rvec: np.ndarray, tvec: np.ndarray, ids: np.ndarray,
+                 corners_px: np.ndarray, centers_px: np.ndarray, inside: np.ndarray,
+                 side_px: np.ndarray, file: str | None = None,
+                 stamp_ns: int | None = None) -> dict[str, Any]:
+    """One frame's JSON record (markers behind the camera are left out)."""
+    rec: dict[str, Any] = {"file": file} if file is not None else {"stamp_ns": int(stamp_ns or 0)}
+    rec["rvec"] = [float(v) for v in np.ravel(rvec)]
+    rec["tvec"] = [float(v) for v in np.ravel(tvec)]
+    markers = []
+    for k in range(len(ids)):
+        if not (np.all(np.isfinite(corners_px[k])) and np.all(np.isfinite(centers_px[k]))):
+            continue
+        markers.append({
+            "id": int(ids[k]),
+            "corners": np.round(corners_px[k], _DECIMALS).tolist(),
+            "center": np.round(centers_px[k], _DECIMALS).tolist(),
+            "inside": bool(inside[k]),
+            "side_px": round(float(side_px[k]), 4)})
+    rec["markers"] = markers
+    return rec
+
+
+def write_truth(path: str | Path, camera: Camera, board: Board,
+                frames: Sequence[dict[str, Any]], *, photometry: dict[str, Any] | None = None,
+                seed: int | None = None) -> None:
+    """Write ``truth.json`` atomically (frames: records from :func:`frame_record`)."""
+    path = Path(path)
+    doc = {"camera": camera.to_dict(), "board": board_params(board),
+           "photometry": photometry or {}, "seed": seed, "frames": list(frames)}
+    fd, tmp = tempfile.mkstemp(prefix=".truth-", suffix=".json", dir=path.parent or ".")
+    try:
+        with os.fdopen(fd, "w") as f:
+            json.dump(doc, f, separators=(",", ":"))
+            f.write("\n")
+        os.replace(tmp, path)
+    except BaseException:
+        Path(tmp).unlink(missing_ok=True)
+        raise
+
+
+def load_truth(path: str | Path) -> Truth:
+    """Read a ``truth.json`` written by ``artcal synth`` (ArtcalError if it is not one)."""
+    path = Path(path)
+    try:
+        doc = json.loads(path.read_text())
+        camera = Camera.from_dict(doc["camera"])
+        board = Board.from_params(doc["board"])
+        frames = []
+        for rec in doc["frames"]:
+            ms = rec["markers"]
+            frames.append(TruthFrame(
+                file=rec.get("file"),
+                stamp_ns=int(rec["stamp_ns"]) if "stamp_ns" in rec else None,
+                rvec=np.array(rec["rvec"], dtype=np.float64),
+                tvec=np.array(rec["tvec"], dtype=np.float64),
+                ids=np.array([m["id"] for m in ms], dtype=np.int64),
+                corners_px=np.array([m["corners"] for m in ms],
+                                    dtype=np.float64).reshape(-1, 4, 2),
+                centers_px=np.array([m["center"] for m in ms], dtype=np.float64).reshape(-1, 2),
+                inside=np.array([m["inside"] for m in ms], dtype=bool),
+                side_px=np.array([m.get("side_px", np.nan) for m in ms], dtype=np.float64)))
+    except OSError as e:
+        raise ArtcalError(f"cannot read truth file {path}: {e.strerror}") from e
+    except (ValueError, KeyError, TypeError, IndexError) as e:
+        raise ArtcalError(f"{path} is not a truth.json written by 'artcal synth' "
+                          f"({type(e).__name__}: {e})") from e
+    return Truth(camera=camera, board=board, frames=frames,
+                 photometry=dict(doc.get("photometry") or {}), seed=doc.get("seed"))
