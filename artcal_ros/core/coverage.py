@@ -4,7 +4,7 @@ A live calibration needs views that, together, put board points over the whole
 image (so distortion is constrained out to the edges) and that tilt the board
 (a fronto-parallel plane leaves the focal length unobservable). The
 :class:`ViewCollector` keeps the views worth solving from (a new view must
-differ from the last one kept), counts where their points fall on a coarse
+differ from every one kept), counts where their points fall on a coarse
 grid, estimates each view's tilt, and says in plain words what is missing.
 
 The tilt estimate assumes a rough camera (focal length = image width,
@@ -39,9 +39,8 @@ class CoverageConfig:
         grid_cols, grid_rows: cells of the coverage grid over the image.
         min_coverage: fraction (0..1) of grid cells that should hold a board point.
         tilt_deg: a view is "tilted" about an axis beyond this angle, degrees.
-        novelty: a view is new if its markers moved by more than this fraction of the
-            image diagonal (mean over the markers both views share), or if fewer than
-            half of its markers were in the previous kept view.
+        novelty: a view is new unless some kept view shares at least half of its markers
+            and their mean displacement is within this fraction of the image diagonal.
         max_stored: views kept at most; later views are counted but not stored.
     """
 
@@ -160,15 +159,18 @@ class ViewCollector:
 
     # --- accumulation -------------------------------------------------------------
     def _is_new(self, dets: Detections) -> bool:
-        if not self._views:
-            return True
-        last = self._views[-1]
-        shared, i_new, i_old = np.intersect1d(dets.ids, last.ids, return_indices=True)
-        if len(shared) < 0.5 * len(dets):
-            return True
-        moved = np.linalg.norm(dets.centers_px[i_new] - last.centers_px[i_old], axis=1).mean()
+        # Against every kept view, not just the last: a board held still, or a recording
+        # played in a loop, must not fill the collection with copies of one view.
         w, h = dets.image_size
-        return bool(moved > self.config.novelty * math.hypot(w, h))
+        limit = self.config.novelty * math.hypot(w, h)
+        for old in reversed(self._views):
+            shared, i_new, i_old = np.intersect1d(dets.ids, old.ids, return_indices=True)
+            if len(shared) < 0.5 * len(dets):
+                continue
+            moved = np.linalg.norm(dets.centers_px[i_new] - old.centers_px[i_old], axis=1)
+            if moved.mean() <= limit:
+                return False
+        return True
 
     def add(self, dets: Detections) -> bool:
         """Offer one view; return whether it was kept (enough markers, new, room left).

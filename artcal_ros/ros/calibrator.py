@@ -165,12 +165,18 @@ class CalibratorNode(Node):
             return response
         try:
             outcome = self._calibrate()
+        except Exception as e:  # a bug must not take the node down with it
+            self.get_logger().error(f"~/calibrate failed: {e!r}")
+            outcome = SolveOutcome(False, f"internal error: {e!r}")
         finally:
             self._solving.release()
         response.success = outcome.success
         response.message = outcome.message
-        log = self.get_logger().info if outcome.success else self.get_logger().warning
-        log(f"~/calibrate: {outcome.message}")
+        # rclpy refuses two severities from one call site, hence two calls.
+        if outcome.success:
+            self.get_logger().info(f"~/calibrate: {outcome.message}")
+        else:
+            self.get_logger().warning(f"~/calibrate: {outcome.message}")
         return response
 
     def _calibrate(self) -> SolveOutcome:
@@ -180,13 +186,13 @@ class CalibratorNode(Node):
         views = self.collector.views
         size = self.collector.image_size
         assert size is not None  # there are views
+        self.get_logger().info(f"solving from {len(views)} views ({readiness.summary()})")
         outcome = run_solve(views, self.board, size, self.params, readiness,
                             stopping=self._stopping)
         if outcome.result is None:
             return outcome
         stamp = self.get_clock().now().to_msg()
-        info = msgs.camera_info(outcome.result, msgs.header(stamp, self.frame_id),
-                                outcome.projection)
+        info = msgs.camera_info(outcome.result, msgs.header(stamp, self.frame_id))
         self.info_pub.publish(info)
         self.last_summary = outcome.message
         if self.params["commit"]:

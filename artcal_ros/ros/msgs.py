@@ -24,24 +24,19 @@ def bgr8_image(image_bgr: np.ndarray, hdr: Header) -> Image:
                  data=arr.tobytes())
 
 
-def camera_info(result: Any, hdr: Header, projection: np.ndarray | None = None) -> CameraInfo:
-    """A sensor_msgs/CameraInfo from a calibration result.
+def camera_info(result: Any, hdr: Header) -> CameraInfo:
+    """A sensor_msgs/CameraInfo from a calibration result, with the same numbers as its YAML.
 
     Args:
-        result: a CalibrationResult (camera_matrix (3, 3), dist_coeffs (n,), model,
-            image_size (width, height)).
+        result: a CalibrationResult.
         hdr: header; frame_id should be the camera's optical frame (the images' frame_id).
-        projection: (3, 4) projection matrix; None gives [K | 0].
     """
-    K = np.asarray(result.camera_matrix, dtype=np.float64).reshape(3, 3)
-    P = np.hstack([K, np.zeros((3, 1))]) if projection is None else \
-        np.asarray(projection, dtype=np.float64).reshape(3, 4)
-    w, h = result.image_size
-    return CameraInfo(
-        header=hdr, width=int(w), height=int(h), distortion_model=str(result.model),
-        d=[float(v) for v in np.asarray(result.dist_coeffs).ravel()],
-        k=[float(v) for v in K.ravel()], r=[1.0, 0.0, 0.0, 0.0, 1.0, 0.0, 0.0, 0.0, 1.0],
-        p=[float(v) for v in P.ravel()])
+    from artcal_ros.core.camera_info import camera_info_fields
+
+    fields = camera_info_fields(result)
+    return CameraInfo(header=hdr, width=fields["width"], height=fields["height"],
+                      distortion_model=fields["distortion_model"], d=fields["d"],
+                      k=fields["k"], r=fields["r"], p=fields["p"])
 
 
 def message_class(msgtype: str) -> type:

@@ -23,21 +23,21 @@ class SolveOutcome:
     success: bool
     message: str
     result: Any = None
-    projection: np.ndarray | None = None  # (3, 4) for CameraInfo.p
 
 
 def summary_line(result: Any) -> str:
     """RMS, fx, fy, cx, cy and views used, on one line."""
     K = np.asarray(result.camera_matrix)
+    used = result.views_used
+    n_used = used if isinstance(used, int) else len(used)
     return (f"RMS {float(result.reprojection_rms_px):.3f} px, fx {K[0, 0]:.2f} fy {K[1, 1]:.2f} "
-            f"cx {K[0, 2]:.2f} cy {K[1, 2]:.2f}, {result.views_used} views used "
-            f"({result.model})")
+            f"cx {K[0, 2]:.2f} cy {K[1, 2]:.2f}, {n_used} views used ({result.model})")
 
 
 def _solve(views: Sequence[Detections], board: Board, image_size: tuple[int, int],
-           params: Mapping[str, Any]) -> tuple[Any, np.ndarray | None]:
+           params: Mapping[str, Any]) -> Any:
     from artcal_ros.core.calibrate import calibrate
-    from artcal_ros.core.camera_info import projection_matrix, write_camera_info_yaml
+    from artcal_ros.core.camera_info import write_camera_info_yaml
 
     result = calibrate(list(views), board, image_size=image_size,
                        model=str(params["camera_model"]), points=str(params["points"]),
@@ -45,7 +45,7 @@ def _solve(views: Sequence[Detections], board: Board, image_size: tuple[int, int
     path = output_path(params)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_camera_info_yaml(path, result, camera_name=str(params["camera_name"]))
-    return result, np.asarray(projection_matrix(result), dtype=np.float64).reshape(3, 4)
+    return result
 
 
 def run_solve(views: Sequence[Detections], board: Board, image_size: tuple[int, int],
@@ -85,8 +85,11 @@ def run_solve(views: Sequence[Detections], board: Board, image_size: tuple[int, 
             return SolveOutcome(False, "shutting down; calibration abandoned")
     if "error" in box:
         return SolveOutcome(False, f"calibration failed: {box['error']}")
-    result, projection = box["value"]
+    result = box["value"]
     message = f"{summary_line(result)}; wrote {output_path(params)}"
+    warnings = list(getattr(result, "warnings", ()) or ())
+    if warnings:
+        message += f"; warnings: {'; '.join(str(w) for w in warnings)}"
     if not readiness.ready:
         message += f"; note, still missing: {'; '.join(readiness.missing)}"
-    return SolveOutcome(True, message, result, projection)
+    return SolveOutcome(True, message, result)

@@ -6,6 +6,7 @@ a timeout only costs time when a test is failing anyway.
 
 from __future__ import annotations
 
+import contextlib
 import os
 import random
 import signal
@@ -81,10 +82,8 @@ class NodeProcess:
     def stop(self, timeout: float = 10.0) -> int:
         """SIGINT (SIGTERM can hang rclpy), then SIGKILL after ``timeout``; the exit status."""
         if self.proc.poll() is None:
-            try:
+            with contextlib.suppress(ProcessLookupError):
                 os.killpg(self.proc.pid, signal.SIGINT)
-            except ProcessLookupError:
-                pass
             try:
                 self.proc.wait(timeout)
             except subprocess.TimeoutExpired:

@@ -1,0 +1,300 @@
+"""The calibrator node over real DDS, started as the real console script.
+
+Checked against the bag's ground truth: a recording played by the replay node calibrates
+to the true camera; reliable and best-effort publishers both reach the node; malformed
+frames are counted and skipped while good ones still calibrate; CameraInfo reaches a late
+transient-local subscriber; ~/reset clears; commit calls set_camera_info; SIGINT during a
+solve exits promptly; bad parameters refuse start-up naming the parameter.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from types import SimpleNamespace
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.msg import ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
+from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from sensor_msgs.msg import CameraInfo, CompressedImage, Image
+from sensor_msgs.srv import SetCameraInfo
+from std_srvs.srv import Trigger
+
+from artcal_ros.core.calibrate_quality import projection_difference
+from test.integration.frames import CalibrationBag, calibration_bag, image_messages
+from test.integration.ros_harness import (
+    ROOT,
+    NodeProcess,
+    Probe,
+    diagnostics_values,
+    wait_until,
+)
+
+pytestmark = pytest.mark.integration
+
+PARAMS = ROOT / "config" / "calibrator.yaml"
+RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                      reliability=ReliabilityPolicy.RELIABLE)
+BEST_EFFORT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
+                         reliability=ReliabilityPolicy.BEST_EFFORT)
+LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                     reliability=ReliabilityPolicy.RELIABLE,
+                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
+MIN_VIEWS = 10  # config/calibrator.yaml
+# Clean synthetic frames calibrate to within ~0.1-0.3 px of the true camera over the whole
+# image (projection difference, RMS). 1 px is where a calibration starts to be visibly
+# wrong when rectifying; a solve that lost a parameter or mixed up views is off by tens.
+ACCURACY_RMS_PX = 1.0
+
+
+@pytest.fixture(scope="module")
+def bag(tmp_path_factory: pytest.TempPathFactory) -> CalibrationBag:
+    return calibration_bag(tmp_path_factory.mktemp("bag"))
+
+
+def calibrator(tmp_path: Path, name: str, image_topic: str, *params: str,
+               remaps: tuple[str, ...] = ()) -> NodeProcess:
+    """The calibrator node under ``name``, listening on ``image_topic``."""
+    args = ["--params-file", str(PARAMS), "-r", f"__node:={name}", "-r", f"image:={image_topic}",
+            "-p", f"output_file:={tmp_path / (name + '.yaml')}"]
+    for p in params:
+        args += ["-p", p]
+    for r in remaps:
+        args += ["-r", r]
+    return NodeProcess("calibrator", args, tmp_path, name=name)
+
+
+def stop_cleanly(node: NodeProcess) -> None:
+    rc = node.stop()
+    assert rc in (0, -2, 130), f"exit {rc}\n{node.output()[-3000:]}"
+    assert "Traceback" not in node.output(), node.output()
+
+
+def set_parameter(probe: Probe, node_name: str, name: str, value: bool) -> None:
+    request = SetParameters.Request(parameters=[ParameterMsg(
+        name=name, value=ParameterValue(type=ParameterType.PARAMETER_BOOL, bool_value=value))])
+    answer = probe.call(SetParameters, f"/{node_name}/set_parameters", request)
+    assert answer.results[0].successful, answer.results[0].reason
+
+
+def camera_info_accuracy(info: CameraInfo, truth: Any) -> float:
+    """RMS projection difference (pixels) between the published camera and the truth."""
+    estimate = SimpleNamespace(camera_matrix=np.array(info.k).reshape(3, 3),
+                               dist_coeffs=np.array(info.d), model=info.distortion_model,
+                               image_size=(info.width, info.height))
+    rms, _ = projection_difference(truth, estimate)
+    return rms
+
+
+def test_bag_replayed_into_the_node_calibrates_to_the_truth(
+        tmp_path: Path, probe: Probe, bag: CalibrationBag) -> None:
+    node = calibrator(tmp_path, "cal_e2e", "/e2e/image")
+    overlay = probe.collect(Image, "/cal_e2e/overlay", RELIABLE)
+    coverage = probe.collect(Image, "/cal_e2e/coverage", LATCHED)
+    diagnostics = probe.collect(DiagnosticArray, "/diagnostics", RELIABLE)
+    # Detection takes ~0.5 s a frame on a small machine; play no faster than that so most
+    # frames are used, and loop in case some are dropped anyway.
+    period = bag.duration_s / max(1, bag.frames - 1)
+    rate = min(1.0, period / 0.7)
+    replay = NodeProcess("replay", ["-p", f"bag:={bag.path}", "-p", f"rate:={rate:.3f}",
+                                    "-p", "loop:=true",
+                                    "-r", f"{bag.topic}:=/e2e/image"], tmp_path)
+    try:
+        wait_until(lambda: overlay and coverage, 60, "the first overlay and coverage images")
+        first = overlay[0]
+        assert first.encoding == "bgr8"
+        assert (first.width, first.height) == bag.camera.size
+        wait_until(lambda: int(diagnostics_values(diagnostics, "cal_e2e").get("views", 0))
+                   >= MIN_VIEWS, 150, f"{MIN_VIEWS} views collected")
+    finally:
+        stop_cleanly(replay)
+    values = diagnostics_values(diagnostics, "cal_e2e")
+    assert int(values["frames seen"]) >= int(values["frames used"]) >= MIN_VIEWS
+    assert int(values["frames broken"]) == 0
+    assert float(values["coverage"]) > 0.3
+    assert np.asarray(coverage[-1].data).any(), "the heat map shows the covered cells"
+
+    answer = probe.call(Trigger, "/cal_e2e/calibrate", timeout=120)
+    assert answer.success, answer.message
+    for word in ("RMS", "fx", "fy", "cx", "cy", "views used"):
+        assert word in answer.message
+    # Subscribing only now: the transient-local CameraInfo must still arrive.
+    infos = probe.collect(CameraInfo, "/camera_info", LATCHED)
+    wait_until(lambda: infos, 20, "the latched CameraInfo")
+    info = infos[-1]
+    rms = camera_info_accuracy(info, bag.camera)
+    assert rms < ACCURACY_RMS_PX, f"projection difference {rms:.3f} px; {answer.message}"
+    saved = yaml.safe_load((tmp_path / "cal_e2e.yaml").read_text())
+    np.testing.assert_allclose(saved["camera_matrix"]["data"], info.k, rtol=1e-6)
+    assert (saved["image_width"], saved["image_height"]) == bag.camera.size
+
+    cleared = probe.call(Trigger, "/cal_e2e/reset")
+    assert cleared.success and "cleared" in cleared.message
+    wait_until(lambda: not np.asarray(coverage[-1].data).any(), 10, "an empty heat map")
+    refused = probe.call(Trigger, "/cal_e2e/calibrate")
+    assert not refused.success
+    assert "not enough views" in refused.message and f"views 0/{MIN_VIEWS}" in refused.message
+    stop_cleanly(node)
+
+
+# --- one node fed frame by frame from the test ------------------------------------------
+
+def broken_copies(good: Image) -> list[tuple[str, Image]]:
+    """Three malformed versions of a frame: wrong step, unknown encoding, truncated data."""
+    def copy(**changes: Any) -> Image:
+        msg = Image(header=good.header, height=good.height, width=good.width,
+                    encoding=good.encoding, is_bigendian=good.is_bigendian, step=good.step,
+                    data=bytes(good.data))
+        for k, v in changes.items():
+            setattr(msg, k, v)
+        return msg
+
+    return [("wrong step", copy(step=good.step - 1)),
+            ("unknown encoding", copy(encoding="yuv_unheard_of")),
+            ("truncated", copy(data=bytes(good.data)[: len(good.data) // 2]))]
+
+
+class Fed:
+    """The state shared by the tests of the frame-by-frame fed node."""
+
+    def __init__(self, node: NodeProcess, overlay: list[Any], diagnostics: list[Any],
+                 broken: int) -> None:
+        self.node = node
+        self.overlay = overlay
+        self.diagnostics = diagnostics
+        self.broken = broken
+
+
+@pytest.fixture(scope="module")
+def fed(tmp_path_factory: pytest.TempPathFactory, probe: Probe,
+        bag: CalibrationBag) -> Iterator[Fed]:
+    """A node given every bag frame, alternately from a reliable and a best-effort publisher,
+    with a malformed frame after every third good one; each frame is sent once the node
+    has finished the previous one (its overlay came back), so none is dropped as busy."""
+    tmp = tmp_path_factory.mktemp("fed")
+    node = calibrator(tmp, "cal_fed", "/fed/image",
+                      remaps=("set_camera_info:=/fake_camera/set_camera_info",))
+    overlay = probe.collect(Image, "/cal_fed/overlay", RELIABLE)
+    diagnostics = probe.collect(DiagnosticArray, "/diagnostics", RELIABLE)
+    reliable = probe.node.create_publisher(Image, "/fed/image", RELIABLE)
+    best_effort = probe.node.create_publisher(Image, "/fed/image", BEST_EFFORT)
+    wait_until(lambda: reliable.get_subscription_count()
+               and best_effort.get_subscription_count(), 30, "the node to subscribe")
+    # The node renders its overlay only for a subscriber: wait until it has seen ours.
+    wait_until(lambda: probe.node.count_publishers("/cal_fed/overlay"), 30, "the overlay")
+    frames = image_messages(bag)
+    broken = 0
+    try:
+        for k, msg in enumerate(frames):
+            before = len(overlay)
+            (reliable if k % 2 == 0 else best_effort).publish(msg)
+            wait_until(lambda b=before: len(overlay) > b, 30,
+                       f"the overlay of frame {k} ({'reliable' if k % 2 == 0 else 'best effort'})")
+            if k % 3 == 2:
+                kind, bad = broken_copies(msg)[broken % 3]
+                (best_effort if k % 2 == 0 else reliable).publish(bad)
+                broken += 1
+                wait_until(lambda n=broken: int(diagnostics_values(diagnostics, "cal_fed").get(
+                    "frames broken", 0)) >= n, 10, f"a {kind} frame to be counted")
+        yield Fed(node, overlay, diagnostics, broken)
+    finally:
+        probe.node.destroy_publisher(reliable)
+        probe.node.destroy_publisher(best_effort)
+        if node.proc.poll() is None:
+            stop_cleanly(node)
+
+
+def test_both_qos_reach_the_node_and_broken_frames_are_skipped(
+        fed: Fed, probe: Probe, bag: CalibrationBag, tmp_path: Path) -> None:
+    assert fed.broken >= 3, "every kind of malformed frame was sent"
+    wait_until(lambda: int(diagnostics_values(fed.diagnostics, "cal_fed")["frames seen"])
+               >= bag.frames + fed.broken, 10, "diagnostics of every frame")
+    values = diagnostics_values(fed.diagnostics, "cal_fed")
+    assert int(values["frames broken"]) == fed.broken
+    assert int(values["frames processed"]) == bag.frames
+    assert int(values["frames dropped (busy)"]) == 0
+    assert "broken frames skipped" in fed.node.output()  # the throttled warning
+    answer = probe.call(Trigger, "/cal_fed/calibrate", timeout=120)
+    assert answer.success, answer.message
+
+
+def test_commit_sends_the_result_to_set_camera_info(fed: Fed, probe: Probe) -> None:
+    set_parameter(probe, "cal_fed", "commit", True)
+    missing = probe.call(Trigger, "/cal_fed/calibrate", timeout=120)
+    assert not missing.success and "NOT committed" in missing.message, missing.message
+    received: list[CameraInfo] = []
+
+    def serve(request: Any, response: Any) -> Any:
+        received.append(request.camera_info)
+        response.success = True
+        return response
+
+    service = probe.node.create_service(SetCameraInfo, "/fake_camera/set_camera_info", serve)
+    try:
+        answer = probe.call(Trigger, "/cal_fed/calibrate", timeout=120)
+        assert answer.success and "committed" in answer.message, answer.message
+        assert len(received) == 1 and received[0].k[0] > 0
+    finally:
+        probe.node.destroy_service(service)
+        set_parameter(probe, "cal_fed", "commit", False)
+
+
+def test_sigint_during_a_solve_exits_promptly(fed: Fed, probe: Probe) -> None:
+    client = probe.node.create_client(Trigger, "/cal_fed/calibrate")
+    assert client.wait_for_service(timeout_sec=20)
+    solves = fed.node.output().count("solving from")
+    client.call_async(Trigger.Request())
+    wait_until(lambda: fed.node.output().count("solving from") > solves, 30,
+               "the solve to start")
+    t0 = time.monotonic()
+    rc = fed.node.stop(timeout=10)
+    elapsed = time.monotonic() - t0
+    assert rc in (0, -2, 130), fed.node.output()[-3000:]
+    assert elapsed < 5.0, f"took {elapsed:.1f} s to stop"
+    assert "Traceback" not in fed.node.output()
+    probe.node.destroy_client(client)
+
+
+def test_compressed_transport(tmp_path: Path, probe: Probe, bag: CalibrationBag) -> None:
+    import cv2
+
+    from artcal_ros.core.images import image_to_numpy
+
+    node = calibrator(tmp_path, "cal_jpeg", "/cj/image", "image_transport:=compressed")
+    overlay = probe.collect(Image, "/cal_jpeg/overlay", RELIABLE)
+    pub = probe.node.create_publisher(CompressedImage, "/cj/image/compressed", RELIABLE)
+    try:
+        wait_until(lambda: pub.get_subscription_count()
+                   and probe.node.count_publishers("/cal_jpeg/overlay"), 30, "the node")
+        frame = image_messages(bag)[0]
+        ok, png = cv2.imencode(".png", image_to_numpy(frame))
+        assert ok
+        pub.publish(CompressedImage(header=frame.header, format="mono8; png compressed",
+                                    data=png.tobytes()))
+        wait_until(lambda: overlay, 30, "the overlay of a compressed frame")
+        assert (overlay[0].width, overlay[0].height) == bag.camera.size
+    finally:
+        probe.node.destroy_publisher(pub)
+        stop_cleanly(node)
+
+
+@pytest.mark.parametrize(("param", "name"), [
+    ("board.cols:=-1", "board.cols"),
+    ("camera_model:=pinhole", "camera_model"),
+    ("board.marker_length:=abc", "board.marker_length"),
+    ("max_views:=3", "max_views"),
+])
+def test_bad_parameter_refuses_to_start(tmp_path: Path, param: str, name: str) -> None:
+    node = calibrator(tmp_path, "cal_bad", "/bad/image", param)
+    rc = node.wait(30)
+    text = node.output()
+    assert rc == 2, text
+    assert f"parameter '{name}'" in text and "Traceback" not in text, text
+    assert len([line for line in text.splitlines() if line.strip()]) == 1, text
