@@ -42,6 +42,7 @@ from artcal_ros.core.calibrate_solve import (
 from artcal_ros.core.calibrate_views import (
     POINTS_MODES,
     check_views,
+    lens_corrected_centres,
     select_views,
     view_geometry,
     view_points,
@@ -301,6 +302,13 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
     say(f"solving {model} from {len(usable)} views")
     views = usable
     sol, _ = solve(views, size, model, k3=k3)
+    if points == "centers":
+        # Re-measure the centres through the fitted lens, then solve again (twice: the
+        # second pass moves them by far less than their noise).
+        for _pass in range(2):
+            views = [lens_corrected_centres(v, sol.camera_matrix, sol.dist_coeffs, model)
+                     for v in views]
+            sol, _ = solve(views, size, model, k3=k3, initial=sol)
     outliers: list[np.ndarray] = []
     points_dropped = 0
     for _round in range(8):

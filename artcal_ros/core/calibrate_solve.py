@@ -45,6 +45,8 @@ class ViewPoints:
         image_points: (M, 2) float64, pixels.
         marker_ids: (M,) int64, the marker each point belongs to.
         sharpness: focus measure of the image (NaN if unknown).
+        marker_corners_px: (M, 4, 2) float64 pixels, for marker centres: the corners they
+            were measured from (so the centres can be corrected for distortion); else None.
     """
 
     index: int
@@ -53,14 +55,22 @@ class ViewPoints:
     image_points: np.ndarray
     marker_ids: np.ndarray
     sharpness: float = float("nan")
+    marker_corners_px: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.image_points)
 
     def subset(self, mask: np.ndarray) -> ViewPoints:
         """Only the points ``mask`` selects."""
+        corners = None if self.marker_corners_px is None else self.marker_corners_px[mask]
         return ViewPoints(self.index, self.source, self.object_points[mask],
-                          self.image_points[mask], self.marker_ids[mask], self.sharpness)
+                          self.image_points[mask], self.marker_ids[mask], self.sharpness,
+                          corners)
+
+    def with_image_points(self, image_points: np.ndarray) -> ViewPoints:
+        """The same view with other image points (M, 2), pixels."""
+        return ViewPoints(self.index, self.source, self.object_points, image_points,
+                          self.marker_ids, self.sharpness, self.marker_corners_px)
 
 
 @dataclass(frozen=True)

@@ -1,0 +1,224 @@
+"""``artcal calibrate``: calibrate a camera from images or a rosbag2 recording.
+
+::
+
+    artcal calibrate IMAGE... --params P [--set KEY=VALUE]... --output camera.yaml [--report DIR]
+    artcal calibrate --bag BAG [--topic T] --params P --output camera.yaml [--report DIR]
+
+Exit status: 0 written; 1 the views cannot support a calibration (the reason is
+printed and no file is written, an existing one is left as it was); 2 bad usage or
+input.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import sys
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from artcal_ros.commands.common import add_params_arguments, params_from_args
+from artcal_ros.core.board import Board
+from artcal_ros.core.calibrate import CalibrationResult, calibrate
+from artcal_ros.core.camera_info import write_camera_info_yaml
+from artcal_ros.core.detections import Detections
+from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
+from artcal_ros.core.params import output_path
+from artcal_ros.progress import Progress
+
+IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
+DEFAULT_TOPIC = "/camera/image_raw"
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """The verb's arguments."""
+    parser.add_argument("images", nargs="*", metavar="IMAGE", help="image files (PNG, JPEG, ...)")
+    parser.add_argument("--bag", metavar="BAG", help="rosbag2 directory or .mcap file to read")
+    parser.add_argument("--topic", metavar="T",
+                        help="image topic in the bag (default: its only Image/CompressedImage "
+                             f"topic, else {DEFAULT_TOPIC})")
+    add_params_arguments(parser)
+    parser.add_argument("--output", metavar="camera.yaml",
+                        help="calibration file to write (default: the output_file parameter, "
+                             "else ~/.ros/camera_info/<camera_name>.yaml)")
+    parser.add_argument("--report", metavar="DIR",
+                        help="also write summary.json and PNG plots into DIR")
+    parser.add_argument("--max-views", type=int, default=40, metavar="N",
+                        help="solve from at most N diverse views (default 40)")
+    parser.add_argument("--max-frames", type=int, default=600, metavar="N",
+                        help="from a bag, detect markers in at most N frames spread evenly "
+                             "over the recording (default 600; 0 = every frame)")
+    parser.add_argument("--k3", action="store_true",
+                        help="also estimate k3 (plumb_bob; for strong wide-angle distortion)")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def _read_image(path: str) -> np.ndarray:
+    import cv2
+
+    image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise ImageFormatError(f"cannot read image {path} (missing, or not an image file)")
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+    return np.asarray(image)
+
+
+def _bag_topic(topics: dict[str, str], wanted: str | None, bag: str) -> str:
+    if wanted is not None:
+        if wanted not in topics:
+            raise ParameterError(f"--topic {wanted}: not in {bag} (topics: "
+                                 f"{', '.join(sorted(topics)) or 'none'})")
+        if topics[wanted] not in IMAGE_TYPES:
+            raise ParameterError(f"--topic {wanted}: is {topics[wanted]}, not an image topic")
+        return wanted
+    images = sorted(t for t, kind in topics.items() if kind in IMAGE_TYPES)
+    if len(images) == 1:
+        return images[0]
+    if DEFAULT_TOPIC in images:
+        return DEFAULT_TOPIC
+    if not images:
+        raise ParameterError(f"{bag} holds no sensor_msgs Image or CompressedImage topic")
+    raise ParameterError(f"{bag} holds several image topics ({', '.join(images)}); "
+                         "choose one with --topic")
+
+
+def _bag_frames(bag: str, topic: str | None, max_frames: int,
+                quiet: bool) -> Iterator[tuple[str, np.ndarray]]:
+    from artcal_ros.bag import BagReader
+    from artcal_ros.core.images import compressed_to_numpy, image_to_numpy
+
+    with BagReader(bag) as reader:
+        name = _bag_topic(reader.topics, topic, bag)
+        total = reader.message_count if len(reader.topics) == 1 else None
+        if total is None:  # count this topic's messages (cheap: no decoding)
+            total = sum(1 for _ in reader.messages(name))
+        stride = 1 if max_frames <= 0 or total <= max_frames else total / max_frames
+        wanted = {int(k * stride) for k in range(int(np.ceil(total / stride)))}
+        bar: Progress[Any] = Progress(total=len(wanted), label=f"detect {name}",
+                                      enabled=not quiet)
+        for k, m in enumerate(reader.messages(name)):
+            if k not in wanted:
+                continue
+            msg = m.decode()
+            image = (compressed_to_numpy(msg) if m.msgtype.endswith("CompressedImage")
+                     else image_to_numpy(msg))
+            yield f"{name}#{k}@{m.log_time_ns}", image
+            bar.update()
+        bar.close()
+
+
+def _file_frames(paths: list[str], quiet: bool) -> Iterator[tuple[str, np.ndarray]]:
+    for path in Progress(paths, label="detect", enabled=not quiet):
+        yield path, _read_image(path)
+
+
+def detect_frames(frames: Iterator[tuple[str, np.ndarray]],
+                  board: Board) -> tuple[list[Detections], tuple[int, int]]:
+    """Detect markers in every frame; all frames must share one size.
+
+    Returns:
+        (detections, (width, height)).
+    """
+    from artcal_ros.core.detect import Detector
+
+    detector = Detector(board)
+    dets: list[Detections] = []
+    size: tuple[int, int] | None = None
+    for source, image in frames:
+        h, w = image.shape[:2]
+        if size is None:
+            size = (w, h)
+        elif size != (w, h):
+            raise ImageFormatError(f"{source} is {w}x{h} but the first image is "
+                                   f"{size[0]}x{size[1]}; calibrate one camera at a time")
+        dets.append(detector.detect(image, source=source))
+    if size is None:
+        raise ParameterError("no images: give image files or --bag BAG")
+    return dets, size
+
+
+def summary_text(result: CalibrationResult, frames: int, seconds: float, out: Path) -> str:
+    """The one-screen summary printed at the end."""
+    K = result.camera_matrix
+    s = result.std_devs
+    lines = [
+        f"camera: {result.model}, {result.image_size[0]}x{result.image_size[1]}, points: "
+        f"{result.points}",
+        f"  fx {K[0, 0]:10.3f} ± {s.get('fx', np.nan):.3f}   fy {K[1, 1]:10.3f} ± "
+        f"{s.get('fy', np.nan):.3f}",
+        f"  cx {K[0, 2]:10.3f} ± {s.get('cx', np.nan):.3f}   cy {K[1, 2]:10.3f} ± "
+        f"{s.get('cy', np.nan):.3f}",
+        "  distortion " + "  ".join(
+            f"{n} {v:.5g}±{s[n]:.2g}" if n in s else f"{n} {v:.5g} (fixed)"
+            for n, v in zip(result.to_summary_dict()["distortion"], result.dist_coeffs,
+                            strict=True)),
+        f"reprojection error: RMS {result.reprojection_rms_px:.3f} px, std "
+        f"{result.reprojection_std_px:.3f} px, max {result.reprojection_max_px:.3f} px",
+        f"hold-out (k-fold over views) RMS: {result.holdout_rms_px:.3f} px; projection "
+        f"uncertainty RMS {result.projection_uncertainty_rms_px:.3f} px, max "
+        f"{result.projection_uncertainty_max_px:.3f} px",
+        f"views: {frames} read, {len(result.views_used)} used, "
+        f"{len(result.views_dropped)} left out; {result.points_dropped} outlier points; "
+        f"image coverage {100 * result.coverage:.0f}%",
+    ]
+    reasons: dict[str, int] = {}
+    for d in result.views_dropped:
+        key = d.reason.split(":")[0]
+        reasons[key] = reasons.get(key, 0) + 1
+    for reason, count in sorted(reasons.items(), key=lambda kv: -kv[1])[:4]:
+        lines.append(f"  {count} x {reason}")
+    for w in result.warnings:
+        lines.append(f"warning: {w}")
+    lines.append(f"wrote {out} ({seconds:.1f} s)")
+    return "\n".join(lines)
+
+
+def run(args: argparse.Namespace) -> int:
+    """Run the verb; see the module docstring for the exit status."""
+    start = time.monotonic()
+    params = params_from_args(args)
+    board = Board.from_params(params)
+    if bool(args.images) == bool(args.bag):
+        raise ParameterError("give either image files or --bag BAG (not both, not neither)")
+    if args.topic and not args.bag:
+        raise ParameterError("--topic needs --bag")
+    if args.max_views < 3:
+        raise ParameterError(f"--max-views {args.max_views}: must be at least 3")
+    out = Path(args.output).expanduser() if args.output else output_path(params)
+    frames = (_bag_frames(args.bag, args.topic, args.max_frames, args.quiet) if args.bag
+              else _file_frames(list(args.images), args.quiet))
+    dets, size = detect_frames(frames, board)
+
+    def say(msg: str) -> None:
+        if not args.quiet:
+            print(f"calibrate: {msg}", file=sys.stderr)
+
+    result = calibrate(dets, board, image_size=size, model=str(params["camera_model"]),
+                       points=str(params["points"]), max_views=args.max_views, k3=args.k3,
+                       progress=say)
+    write_camera_info_yaml(out, result, camera_name=str(params["camera_name"]))
+    if args.report:
+        write_report(Path(args.report), result, dets)
+    print(summary_text(result, len(dets), time.monotonic() - start, out))
+    return 0
+
+
+def write_report(directory: Path, result: CalibrationResult, dets: list[Detections]) -> None:
+    """summary.json and the PNG plots into ``directory``."""
+    from artcal_ros.core.calibrate_report import write_plots
+
+    try:
+        directory.mkdir(parents=True, exist_ok=True)
+        summary = result.to_summary_dict()
+        summary["frames"] = len(dets)
+        summary["sources_used"] = [dets[i].source for i in result.views_used]
+        (directory / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
+    except OSError as e:
+        raise ArtcalError(f"cannot write the report into {directory}: {e.strerror}") from None
+    write_plots(directory, result)
