@@ -63,7 +63,8 @@ class RenderedView:
     """A rendered frame and its truth.
 
     Attributes:
-        image: (H, W) uint8 (mono8), (H, W) uint16 (mono16) or (H, W, 3) uint8 (bgr8/rgb8).
+        image: (H, W) uint8 (mono8), (H, W) uint16 (mono16) or (H, W, 3) uint8 (bgr8/rgb8;
+            BGR channel order in both cases, like ``images.image_to_numpy``).
         encoding: the image's encoding name.
         rvec, tvec: (3,) the pose T_cam_board (Rodrigues; metres).
         ids: (N,) int64 every marker of the board, visible or not.

@@ -124,7 +124,7 @@ class Photometry:
 
 
 def clutter_image(size: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
-    """A random cluttered background: (H, W, 3) float64 linear reflectance in [0.02, 0.9].
+    """A random cluttered background: (H, W, 3) float64 linear RGB reflectance, ~0.0002-1.
 
     Smooth shading, rectangles, ellipses, lines and dark/light patches, some with sharp
     square corners (to tempt a marker detector), all in colour."""
@@ -155,9 +155,12 @@ def clutter_image(size: tuple[int, int], rng: np.random.Generator) -> np.ndarray
                           (30, 30, 30), -1)
             cv2.rectangle(img8, (int(cx - q), int(cy - q)), (int(cx + q), int(cy + q)),
                           (220, 220, 220), max(1, int(q * 0.15)))
-    texture = rng.normal(0.0, 6.0, size=(h, w, 1))
-    lin = (img8.astype(np.float64) + texture) / 255.0
-    return np.asarray(np.clip(lin, 0.02, 0.9) ** 2.2)   # the sRGB-ish drawing -> linear
+    # drawn in gamma-encoded 8-bit; to linear light through a table, then a fine grain
+    lut = (np.clip(np.arange(256) / 255.0, 0.02, 0.9) ** 2.2).astype(np.float32)
+    lin = lut[img8]
+    grain = rng.standard_normal((h, w), dtype=np.float32)
+    lin *= (1.0 + 0.08 * grain)[..., None]
+    return np.asarray(lin, dtype=np.float64)
 
 
 def _disc_kernel(radius: float) -> np.ndarray:
@@ -220,7 +223,9 @@ def sense_and_encode(radiance: np.ndarray, phot: Photometry, rng: np.random.Gene
         encoding: ``mono8``, ``mono16``, ``bgr8`` or ``rgb8``.
 
     Returns:
-        (H, W) uint8 / uint16 or (H, W, 3) uint8 in the encoding's channel order.
+        (H, W) uint8 / uint16, or (H, W, 3) uint8 in OpenCV's BGR order for both colour
+        encodings (as :func:`artcal_ros.core.images.image_to_numpy` returns them; the
+        encoding decides the channel order only in a message).
     """
     signal = radiance * phot.exposure
     if phot.noise:
@@ -235,8 +240,8 @@ def sense_and_encode(radiance: np.ndarray, phot: Photometry, rng: np.random.Gene
     if encoding == "mono16":
         return np.round(signal * 65535.0).astype(np.uint16)
     out = np.round(signal * 255.0).astype(np.uint8)
-    if encoding == "bgr8":
-        out = np.ascontiguousarray(out[..., ::-1])
+    if out.ndim == 3:
+        out = np.ascontiguousarray(out[..., ::-1])   # RGB -> BGR
     if phot.jpeg_quality is not None:
         ok, buf = cv2.imencode(".jpg", out, [cv2.IMWRITE_JPEG_QUALITY, int(phot.jpeg_quality)])
         if ok:
