@@ -172,6 +172,8 @@ def _disc_kernel(radius: float) -> np.ndarray:
     inside = (xx * xx + yy * yy <= radius * radius).astype(np.float64)
     k = inside.reshape(2 * r + 1, sub, 2 * r + 1, sub).mean(axis=(1, 3))
     k = 0.5 * (k + k[::-1, ::-1])   # exactly point-symmetric: blur must not move edges
+    if not k.sum() > 0:              # a disc smaller than the sampling: no blur
+        return np.ones((1, 1))
     return np.asarray(k / k.sum())
 
 
@@ -194,10 +196,10 @@ def _line_kernel(length: float, angle_deg: float) -> np.ndarray:
 def blur(lin: np.ndarray, phot: Photometry, rng: np.random.Generator) -> np.ndarray:
     """Defocus and motion blur of a linear image (H, W) or (H, W, C), in linear light."""
     out = lin
-    if phot.defocus_px > 0.05:
+    if phot.defocus_px >= 0.2:
         out = cv2.filter2D(out, -1, _disc_kernel(phot.defocus_px),
                            borderType=cv2.BORDER_REFLECT)
-    if phot.motion_px > 0.05:
+    if phot.motion_px >= 0.2:
         angle = (phot.motion_angle_deg if phot.motion_angle_deg is not None
                  else float(rng.uniform(0, 180)))
         out = cv2.filter2D(out, -1, _line_kernel(phot.motion_px, angle),
