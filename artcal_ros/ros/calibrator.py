@@ -18,6 +18,7 @@ waits for it in a reentrant callback, so images keep flowing meanwhile.
 
 from __future__ import annotations
 
+import os
 import sys
 import threading
 import time
@@ -42,7 +43,7 @@ from artcal_ros.core.params import ParamValue
 from artcal_ros.ros import msgs
 from artcal_ros.ros.diagnostics import Counters, diagnostic_array
 from artcal_ros.ros.parameters import check_update, declare_parameters
-from artcal_ros.ros.solve import SolveOutcome, run_solve
+from artcal_ros.ros.solve import SolveOutcome, busy_threads, run_solve
 
 IMAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                        reliability=ReliabilityPolicy.BEST_EFFORT,
@@ -172,6 +173,8 @@ class CalibratorNode(Node):
             self._solving.release()
         response.success = outcome.success
         response.message = outcome.message
+        if not self.context.ok():
+            return response  # shutting down: rosout is gone, nobody reads the log
         # rclpy refuses two severities from one call site, hence two calls.
         if outcome.success:
             self.get_logger().info(f"~/calibrate: {outcome.message}")
@@ -262,7 +265,25 @@ def main(args: list[str] | None = None) -> int:
         executor.shutdown(timeout_sec=2.0)
         node.destroy_node()
         rclpy.try_shutdown()
-    return 0
+    return _exit_status_when_threads_done(0)
+
+
+def _exit_status_when_threads_done(status: int, timeout: float = 3.0) -> int:
+    """Wait up to ``timeout`` s for solve and detection threads, else leave at once.
+
+    A daemon thread still inside OpenCV when the interpreter finalizes can abort the
+    process ("exception not rethrown"); leaving with os._exit skips that finalization.
+    """
+    deadline = time.monotonic() + timeout
+    for thread in [*busy_threads(), *(t for t in threading.enumerate()
+                                      if t.name == "detect")]:
+        thread.join(max(0.0, deadline - time.monotonic()))
+    if busy_threads() or any(t.name == "detect" and t.is_alive()
+                             for t in threading.enumerate()):
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(status)
+    return status
 
 
 if __name__ == "__main__":

@@ -15,6 +15,14 @@ from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError
 from artcal_ros.core.params import output_path
 
+# Solve threads started (the node waits for live ones at shutdown, see busy_threads).
+SOLVE_THREADS: list[threading.Thread] = []
+
+
+def busy_threads() -> list[threading.Thread]:
+    """Solve threads still running."""
+    return [t for t in SOLVE_THREADS if t.is_alive()]
+
 
 @dataclass(frozen=True)
 class SolveOutcome:
@@ -34,14 +42,22 @@ def summary_line(result: Any) -> str:
             f"cx {K[0, 2]:.2f} cy {K[1, 2]:.2f}, {n_used} views used ({result.model})")
 
 
+class CancelledError(Exception):
+    """Raised from the solve's progress callback to end it early (node shutting down)."""
+
+
 def _solve(views: Sequence[Detections], board: Board, image_size: tuple[int, int],
-           params: Mapping[str, Any]) -> Any:
+           params: Mapping[str, Any], stopping: threading.Event) -> Any:
     from artcal_ros.core.calibrate import calibrate
     from artcal_ros.core.camera_info import write_camera_info_yaml
 
+    def progress(_stage: str) -> None:
+        if stopping.is_set():
+            raise CancelledError
+
     result = calibrate(list(views), board, image_size=image_size,
                        model=str(params["camera_model"]), points=str(params["points"]),
-                       max_views=int(params["max_views"]))
+                       max_views=int(params["max_views"]), progress=progress)
     path = output_path(params)
     path.parent.mkdir(parents=True, exist_ok=True)
     write_camera_info_yaml(path, result, camera_name=str(params["camera_name"]))
@@ -53,8 +69,8 @@ def run_solve(views: Sequence[Detections], board: Board, image_size: tuple[int, 
               stopping: threading.Event) -> SolveOutcome:
     """Calibrate from ``views`` on a daemon thread, waiting for it unless ``stopping`` is set.
 
-    A daemon thread lets the process exit promptly on shutdown while a solve is still
-    running (the solve's result is then discarded).
+    On shutdown (``stopping`` set) the wait ends at once and the solve stops at its next
+    stage; the node waits briefly for it (see :func:`busy_threads`).
 
     Args:
         views: the kept views (all of one image size).
@@ -69,7 +85,9 @@ def run_solve(views: Sequence[Detections], board: Board, image_size: tuple[int, 
 
     def work() -> None:
         try:
-            box["value"] = _solve(views, board, image_size, params)
+            box["value"] = _solve(views, board, image_size, params, stopping)
+        except CancelledError:
+            box["error"] = "cancelled"
         except ArtcalError as e:
             box["error"] = str(e)
         except OSError as e:
@@ -79,7 +97,9 @@ def run_solve(views: Sequence[Detections], board: Board, image_size: tuple[int, 
         finally:
             done.set()
 
-    threading.Thread(target=work, name="solve", daemon=True).start()
+    thread = threading.Thread(target=work, name="solve", daemon=True)
+    thread.start()
+    SOLVE_THREADS.append(thread)
     while not done.wait(0.1):
         if stopping.is_set():
             return SolveOutcome(False, "shutting down; calibration abandoned")
