@@ -124,14 +124,16 @@ def render_linear(board: Board, cam: Camera, rvec: np.ndarray, tvec: np.ndarray,
     light = phot.illumination * np.clip(1.0 + phot.gradient * along, 0.0, None)
     board_rad = cov.alpha * light * (phot.ink + (phot.paper - phot.ink) * cov.white)
     if phot.clutter:
-        back = clutter_image(cam.size, rng) * phot.background
+        back = clutter_image(cam.size, rng)
     else:
-        back = np.full((cam.height, cam.width, 3), 0.15 * phot.background)
+        back = np.full((cam.height, cam.width, 3), 0.15, dtype=np.float32)
     tint = np.asarray(phot.tint, dtype=np.float64)
     if color:
-        lin = (board_rad[..., None] + (1.0 - cov.alpha)[..., None] * back) * tint
+        lin = (board_rad[..., None] + (1.0 - cov.alpha)[..., None] * (back * phot.background))
+        lin *= tint
     else:
-        lin = board_rad * float(tint @ _LUMA) + (1.0 - cov.alpha) * ((back * tint) @ _LUMA)
+        back_luma = back @ (tint * _LUMA * phot.background).astype(np.float32)
+        lin = board_rad * float(tint @ _LUMA) + (1.0 - cov.alpha) * back_luma
     lin = blur(lin, phot, rng)
     if phot.vignetting > 0:
         v = vignette(cam.size, phot.vignetting)

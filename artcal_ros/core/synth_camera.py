@@ -120,7 +120,7 @@ class Camera:
 
         Returns:
             ray: (H, W, 3) float64 direction in the camera frame (any positive scale);
-            ray_du, ray_dv: (H, W, 3) derivatives of ``ray`` per pixel step in u and v;
+            ray_du, ray_dv: (H, W, 3) float32 derivatives of ``ray`` per pixel step in u and v;
             valid: (H, W) bool, False where the lens model cannot be inverted (beyond a fold of
             the distortion polynomial), so nothing is drawn there.
         """
@@ -128,7 +128,9 @@ class Camera:
             w, h = self.size
             u, v = np.meshgrid(np.arange(w, dtype=np.float64), np.arange(h, dtype=np.float64))
             u, v = u.ravel(), v.ravel()
-            ray, ray_du, ray_dv = (np.empty((h * w, 3)) for _ in range(3))
+            ray = np.empty((h * w, 3))
+            # derivatives only scale sub-pixel distances: float32 (1e-7 relative) is plenty
+            ray_du, ray_dv = (np.empty((h * w, 3), dtype=np.float32) for _ in range(2))
             valid = np.empty(h * w, dtype=bool)
             # in blocks: temporaries stay in cache, ~3x faster than whole-image arrays
             for i in range(0, h * w, CHUNK):

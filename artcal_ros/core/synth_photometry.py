@@ -124,7 +124,7 @@ class Photometry:
 
 
 def clutter_image(size: tuple[int, int], rng: np.random.Generator) -> np.ndarray:
-    """A random cluttered background: (H, W, 3) float64 linear RGB reflectance, ~0.0002-1.
+    """A random cluttered background: (H, W, 3) float32 linear RGB reflectance, ~0.0002-1.
 
     Smooth shading, rectangles, ellipses, lines and dark/light patches, some with sharp
     square corners (to tempt a marker detector), all in colour."""
@@ -160,7 +160,7 @@ def clutter_image(size: tuple[int, int], rng: np.random.Generator) -> np.ndarray
     lin = lut[img8]
     grain = rng.standard_normal((h, w), dtype=np.float32)
     lin *= (1.0 + 0.08 * grain)[..., None]
-    return np.asarray(lin, dtype=np.float64)
+    return np.asarray(lin)
 
 
 def _disc_kernel(radius: float) -> np.ndarray:
