@@ -1,0 +1,44 @@
+"""Calibrate from a recording: the replay node plays a bag into the calibrator node.
+
+    ros2 launch artcal_ros calibrate_from_bag.launch.py bag:=/path/to/bag \
+        image_topic:=/camera/image_raw rate:=0.5
+
+then, when the overlay says it is ready:
+
+    ros2 service call /calibrator/calibrate std_srvs/srv/Trigger
+"""
+
+from launch.actions import DeclareLaunchArgument
+from launch.substitutions import LaunchConfiguration, PathJoinSubstitution
+from launch_ros.actions import Node
+from launch_ros.substitutions import FindPackageShare
+
+from launch import LaunchDescription
+
+
+def generate_launch_description() -> LaunchDescription:
+    bag = LaunchConfiguration("bag")
+    image_topic = LaunchConfiguration("image_topic")
+    rate = LaunchConfiguration("rate")
+    loop = LaunchConfiguration("loop")
+    params_file = LaunchConfiguration("params_file")
+    return LaunchDescription([
+        DeclareLaunchArgument("bag", description="rosbag2 MCAP directory or .mcap file"),
+        DeclareLaunchArgument("image_topic", default_value="/camera/image_raw",
+                              description="the recorded sensor_msgs/Image topic"),
+        DeclareLaunchArgument("rate", default_value="0.5",
+                              description="playback speed; the calibrator keeps the newest "
+                                          "frame only, so slower plays more views"),
+        DeclareLaunchArgument("loop", default_value="false",
+                              description="play the bag again and again"),
+        DeclareLaunchArgument(
+            "params_file",
+            default_value=PathJoinSubstitution(
+                [FindPackageShare("artcal_ros"), "config", "calibrator.yaml"]),
+            description="board and calibration parameters"),
+        Node(package="artcal_ros", executable="calibrator", name="calibrator",
+             output="screen", parameters=[params_file],
+             remappings=[("image", image_topic)]),
+        Node(package="artcal_ros", executable="replay", name="replay", output="screen",
+             parameters=[{"bag": bag, "rate": rate, "loop": loop}]),
+    ])
