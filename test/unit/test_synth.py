@@ -118,6 +118,27 @@ def test_rendered_edge_lies_where_the_truth_says(name: str, rvec: np.ndarray,
     assert np.max(np.abs(errors)) < 0.002   # in fact
 
 
+def test_render_matches_brute_force_point_sampling() -> None:
+    """Corners included: each pixel equals the mean of 32 x 32 exact point samples (their own
+    sampling error is up to ~1/32 where an edge crosses the pixel)."""
+    board = Board()
+    cam = Camera.preset("webcam")
+    rvec, tvec = np.array([0.3, -0.35, 0.2]), np.array([-0.3, -0.15, 0.5])
+    img = render_linear(board, cam, rvec, tvec, photometry=Photometry.exact())
+    y0, x0, h, w, s = 200, 280, 24, 30, 32
+    off = (np.arange(s) + 0.5) / s - 0.5
+    uu = np.broadcast_to(np.arange(x0, x0 + w)[None, :, None, None] + off, (h, w, s, s))
+    vv = np.broadcast_to(np.arange(y0, y0 + h)[:, None, None, None] + off[:, None], (h, w, s, s))
+    ray = rays_from_pixels(cam, uu.ravel(), vv.ravel())[0]
+    R = cv2.Rodrigues(rvec)[0]
+    points = (ray * ((R[:, 2] @ tvec) / (ray @ R[:, 2]))[:, None] - tvec) @ R   # on the board
+    ref = board.is_white(points[:, 0], points[:, 1]).reshape(h, w, s * s).mean(axis=-1)
+    diff = np.abs(img[y0:y0 + h, x0:x0 + w] - ref)
+    assert 0.1 < ref.mean() < 0.9, "the window must hold edges and corners"
+    assert diff.max() < 0.03
+    assert diff.mean() < 1e-3
+
+
 def test_blurred_edge_50_percent_crossing() -> None:
     """With defocus the interpolated 50 % crossing of linear output is still on the edge."""
     name, rvec, tvec = EDGE_CASES[0]
