@@ -121,7 +121,7 @@ def render_linear(board: Board, cam: Camera, rvec: np.ndarray, tvec: np.ndarray,
     psi = rng.uniform(0, 2 * math.pi)
     half_diag = 0.5 * math.hypot(w_m, h_m)
     along = ((cov.bx - w_m / 2) * math.cos(psi) + (cov.by - h_m / 2) * math.sin(psi)) / half_diag
-    light = phot.illumination * np.clip(1.0 + phot.gradient * along, 0.0, None)
+    light = phot.illumination * np.maximum(1.0 + phot.gradient * along, 0.0)
     board_rad = cov.alpha * light * (phot.ink + (phot.paper - phot.ink) * cov.white)
     if phot.clutter:
         back = clutter_image(cam.size, rng)

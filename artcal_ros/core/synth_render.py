@@ -194,8 +194,8 @@ def _coverage_block(board: Board, R: np.ndarray, t: np.ndarray, ray: np.ndarray,
     bxo, byo, Jo = bx[on], by[on], J[:, on]
     wo, ao, corner = _shade(board, bxo, byo, Jo, 1.0)
     # sub-boxes where the pixel holds a pattern corner or more than one parallel module edge
-    S = np.clip(np.ceil(ext[on] / board.module_length * 1.05), 1, MAX_SUPERSAMPLE)
-    S = S.astype(np.int64)
+    S = np.minimum(np.ceil(ext[on] / board.module_length * 1.05), MAX_SUPERSAMPLE)
+    S = np.maximum(S, 1).astype(np.int64)
     S[corner] = np.maximum(S[corner], CORNER_SUPERSAMPLE)
     for s in range(2, MAX_SUPERSAMPLE + 1):
         idx = np.flatnonzero(np.equal(S, s))
