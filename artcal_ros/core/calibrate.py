@@ -42,6 +42,7 @@ from artcal_ros.core.calibrate_solve import (
 from artcal_ros.core.calibrate_views import (
     POINTS_MODES,
     check_views,
+    layout_outliers,
     lens_corrected_centres,
     select_views,
     view_geometry,
@@ -58,7 +59,13 @@ OUTLIER_SIGMAS = 5.0  # a point further than this many robust sigmas from its pr
 OUTLIER_FLOOR_PX = 0.5  # ... and at least this far is an outlier
 VIEW_OUTLIER_FACTOR = 3.0  # a view whose RMS exceeds this many times the median view's
 VIEW_OUTLIER_FRACTION = 0.25  # or with more than this share of outlier points is dropped
-MAX_RMS_PX = 3.0  # above this the board description or the lens model is wrong
+MAX_RMS_PX = 1.0  # above this (x image diagonal / 1000, if larger) the board description
+# or the lens model is wrong: good detections fit to a few tenths of a pixel
+
+
+def max_rms_px(image_size: tuple[int, int]) -> float:
+    """The largest RMS reprojection error accepted for an image of this size, pixels."""
+    return max(MAX_RMS_PX, 1e-3 * float(np.hypot(*image_size)))
 PARAM_EFFECT_WARN_PX = 0.5  # a parameter whose 1-sigma moves the image this much is weak
 MIN_COVERAGE = 0.6  # share of the image grid cells that should hold points
 
@@ -184,7 +191,7 @@ def _stats(res: Sequence[np.ndarray]) -> tuple[float, float, float]:
     return rms, std, float(norms.max())
 
 
-def _reject(views: list[ViewPoints], res: list[np.ndarray], board: Board,
+def _reject(views: list[ViewPoints], res: list[np.ndarray], board: Board, size: tuple[int, int],
             dropped: list[DroppedView], outliers: list[np.ndarray]) -> tuple[list[ViewPoints],
                                                                            int]:
     """One round of outlier rejection: whole views first, then single points.
@@ -197,10 +204,12 @@ def _reject(views: list[ViewPoints], res: list[np.ndarray], board: Board,
     # Residual lengths of 2-D Gaussian noise follow a Rayleigh law: median = 1.1774 sigma.
     sigma = float(np.median(alln)) / 1.1774
     thr = max(OUTLIER_SIGMAS * sigma, OUTLIER_FLOOR_PX)
-    view_rms = np.array([float(np.sqrt(np.mean(n ** 2))) for n in norms])
+    # A view's RMS over its inlier points: one bad point must not condemn a good view.
+    view_rms = np.array([float(np.sqrt(np.mean(n[n <= thr] ** 2))) if (n <= thr).any()
+                         else float(np.sqrt(np.mean(n ** 2))) for n in norms])
     frac = np.array([float(np.mean(n > thr)) for n in norms])
     med = float(np.median(view_rms))
-    if med > MAX_RMS_PX:
+    if med > max_rms_px(size):
         raise CalibrationError(
             f"the {len(views)} views cannot be fitted together (median view RMS {med:.1f} px): "
             "the board parameters (board.cols, board.rows, board.marker_length, "
@@ -241,6 +250,40 @@ def _reject(views: list[ViewPoints], res: list[np.ndarray], board: Board,
             dropped.append(DroppedView(v.index, v.source,
                                        f"after removing outlier points: {problem}"))
             continue
+        removed += int((~good).sum())
+        kept.append(sub)
+    return kept, removed
+
+
+def _layout_check(views: list[ViewPoints], board: Board, dropped: list[DroppedView],
+                  outliers: list[np.ndarray]) -> tuple[list[ViewPoints], int]:
+    """Drop markers that disagree with the board layout, and views where many do.
+
+    A single misidentified view (another board, wrong ids) would otherwise pull the first
+    solve so far that no view fits any more. Returns (views kept, points removed).
+    """
+    kept: list[ViewPoints] = []
+    removed = 0
+    for v in views:
+        bad = layout_outliers(v, board)
+        if not bad.any():
+            kept.append(v)
+            continue
+        if bad.mean() > VIEW_OUTLIER_FRACTION:
+            dropped.append(DroppedView(
+                v.index, v.source, f"markers do not match the board layout ({int(bad.sum())} "
+                f"of {len(bad)} out of place): check board.cols and board.rows, or the "
+                "view shows another board"))
+            continue
+        ids = np.unique(v.marker_ids)
+        good = ~np.isin(v.marker_ids, ids[bad])
+        sub = v.subset(good)
+        problem = view_problem(sub, board)
+        if problem is not None:
+            dropped.append(DroppedView(v.index, v.source,
+                                       f"after removing misplaced markers: {problem}"))
+            continue
+        outliers.append(v.image_points[~good])
         removed += int((~good).sum())
         kept.append(sub)
     return kept, removed
@@ -298,6 +341,9 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
             if k not in keep:
                 dropped.append(DroppedView(v.index, v.source, "not selected (similar views kept)"))
         usable = [v for k, v in enumerate(usable) if k in keep]
+    outliers: list[np.ndarray] = []
+    usable, points_dropped = _layout_check(usable, board, dropped, outliers)
+    check_views(usable, size, [(d.view_index, d.reason) for d in dropped])
 
     say(f"solving {model} from {len(usable)} views")
     views = usable
@@ -309,11 +355,9 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
             views = [lens_corrected_centres(v, sol.camera_matrix, sol.dist_coeffs, model)
                      for v in views]
             sol, _ = solve(views, size, model, k3=k3, initial=sol)
-    outliers: list[np.ndarray] = []
-    points_dropped = 0
     for _round in range(8):
         res = residuals(views, sol)
-        kept, removed = _reject(views, res, board, dropped, outliers)
+        kept, removed = _reject(views, res, board, size, dropped, outliers)
         if len(kept) == len(views) and removed == 0:
             break
         points_dropped += removed
@@ -366,10 +410,11 @@ def _sanity(sol: Solution, views: Sequence[ViewPoints], size: tuple[int, int],
     """Raise CalibrationError for a camera that cannot be right."""
     w, h = size
     K = sol.camera_matrix
-    if rms > MAX_RMS_PX:
+    limit = max_rms_px(size)
+    if rms > limit:
         raise CalibrationError(
             f"the best {sol.model} fit leaves {rms:.2f} px RMS reprojection error (> "
-            f"{MAX_RMS_PX} px): check the board parameters (board.cols, board.rows, "
+            f"{limit:.1f} px): check the board parameters (board.cols, board.rows, "
             "board.marker_length, board.marker_separation) and the camera_model")
     if not (0 <= K[0, 2] <= w and 0 <= K[1, 2] <= h):
         raise CalibrationError(

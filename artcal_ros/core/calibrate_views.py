@@ -81,6 +81,43 @@ def lens_corrected_centres(view: ViewPoints, camera_matrix: np.ndarray,
     return view.with_image_points(new)
 
 
+LAYOUT_TOLERANCE = 0.35  # of the local marker pitch in the image
+
+
+def layout_outliers(view: ViewPoints, board: Board) -> np.ndarray:
+    """Markers whose image position disagrees with their neighbours' (before any solve).
+
+    Each marker's image position is predicted by an affine map fitted to the markers
+    within two cells of it on the board; over so small a patch perspective and lens
+    distortion are nearly affine, so a marker off by more than a third of the local
+    marker pitch is misplaced or misidentified. Needs no camera model.
+
+    Returns:
+        (K,) bool over ``np.unique(view.marker_ids)``: True where the marker is an outlier
+        (markers with fewer than 4 neighbours present are never flagged).
+    """
+    ids, inverse = np.unique(view.marker_ids, return_inverse=True)
+    k = len(ids)
+    pos = np.zeros((k, 2))
+    np.add.at(pos, inverse, view.image_points)
+    pos /= np.bincount(inverse, minlength=k)[:, None]
+    rc = np.array([board.cell_of(int(i)) for i in ids], dtype=np.float64).reshape(-1, 2)
+    bad = np.zeros(k, dtype=bool)
+    for m in range(k):
+        near = np.max(np.abs(rc - rc[m]), axis=1) <= 2
+        near[m] = False
+        if near.sum() < 4:
+            continue
+        X = np.column_stack([rc[near][:, 1], rc[near][:, 0], np.ones(int(near.sum()))])
+        coef, *_ = np.linalg.lstsq(X, pos[near], rcond=None)
+        pitch_px = float(np.sqrt(abs(np.linalg.det(coef[:2]))))
+        if not np.isfinite(pitch_px) or pitch_px <= 0:
+            continue
+        pred = np.array([rc[m, 1], rc[m, 0], 1.0]) @ coef
+        bad[m] = np.linalg.norm(pred - pos[m]) > LAYOUT_TOLERANCE * pitch_px
+    return bad
+
+
 def view_problem(view: ViewPoints, board: Board) -> str | None:
     """Why this view cannot take part in a solve, or None if it can."""
     ids = np.unique(view.marker_ids)
