@@ -93,7 +93,7 @@ def _compare_with_truth(bag: Path, yaml_path: Path) -> None:
           f"{rms:.3f} px RMS, {worst:.3f} px max over the image")
 
 
-def run(bag: Path, out: Path, timeout_s: float) -> int:
+def run(bag: Path, out: Path, timeout_s: float, rate: float | None = None) -> int:
     """The demo; 0 when the calibration succeeded."""
     # Our own DDS domain on this machine only, before any rclpy context exists.
     os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 200))
@@ -106,7 +106,8 @@ def run(bag: Path, out: Path, timeout_s: float) -> int:
 
     topic, frames, span = _bag_timing(bag)
     period = span / max(1, frames - 1)
-    rate = min(1.0, period / DETECT_S) if period > 0 else 1.0
+    if rate is None:
+        rate = min(1.0, period / DETECT_S) if period > 0 else 1.0
     yaml_path = out / "camera.yaml"
     print(f"demo: {bag} has {frames} images on {topic} over {span:.1f} s; "
           f"replaying at rate {rate:.2f} into the calibrator "
@@ -187,6 +188,9 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--bag", type=Path, default=DEFAULT_BAG, help="rosbag2 MCAP recording")
     ap.add_argument("--out", type=Path, default=None,
                     help="directory for camera.yaml and the node logs (default: a new temp dir)")
+    ap.add_argument("--rate", type=float, default=None,
+                    help="replay speed (default: slow enough for detection to see most "
+                         "frames); at 1.0 the node keeps the newest frame and drops the rest")
     ap.add_argument("--timeout", type=float, default=120.0,
                     help="seconds to wait for enough views")
     args = ap.parse_args(argv)
@@ -197,7 +201,7 @@ def main(argv: list[str] | None = None) -> int:
     out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     try:
-        status = run(args.bag.resolve(), out.resolve(), args.timeout)
+        status = run(args.bag.resolve(), out.resolve(), args.timeout, args.rate)
     except KeyboardInterrupt:
         print("demo: interrupted", file=sys.stderr)
         return 130
