@@ -39,8 +39,9 @@ class CoverageConfig:
         grid_cols, grid_rows: cells of the coverage grid over the image.
         min_coverage: fraction (0..1) of grid cells that should hold a board point.
         tilt_deg: a view is "tilted" about an axis beyond this angle, degrees.
-        novelty: a view is new unless some kept view shares at least half of its markers
-            and their mean displacement is within this fraction of the image diagonal.
+        novelty: a view is new unless some kept view shares at least half of its markers,
+            their mean displacement is within this fraction of the image diagonal, and
+            the board's tilt differs by at most half of ``tilt_deg``.
         max_stored: views kept at most; later views are counted but not stored.
     """
 
@@ -158,17 +159,23 @@ class ViewCollector:
             self._image_size: tuple[int, int] | None = None
 
     # --- accumulation -------------------------------------------------------------
-    def _is_new(self, dets: Detections) -> bool:
+    def _is_new(self, dets: Detections, geometry: ViewGeometry) -> bool:
         # Against every kept view, not just the last: a board held still, or a recording
-        # played in a loop, must not fill the collection with copies of one view.
+        # played in a loop, must not fill the collection with copies of one view. Turning
+        # the board about its centre barely moves the markers on average but is exactly the
+        # view a solve needs, hence the tilt test as well.
         w, h = dets.image_size
         limit = self.config.novelty * math.hypot(w, h)
-        for old in reversed(self._views):
+        turn = 0.5 * self.config.tilt_deg
+        for old, old_geometry in zip(reversed(self._views), reversed(self._geometry),
+                                     strict=True):
             shared, i_new, i_old = np.intersect1d(dets.ids, old.ids, return_indices=True)
             if len(shared) < 0.5 * len(dets):
                 continue
             moved = np.linalg.norm(dets.centers_px[i_new] - old.centers_px[i_old], axis=1)
-            if moved.mean() <= limit:
+            turned = max(abs(geometry.tilt_x_deg - old_geometry.tilt_x_deg),
+                         abs(geometry.tilt_y_deg - old_geometry.tilt_y_deg))
+            if moved.mean() <= limit and turned <= turn:
                 return False
         return True
 
@@ -184,7 +191,7 @@ class ViewCollector:
             self.reset()
         geometry = view_geometry(dets, self.board)
         with self._lock:
-            if len(self._views) >= self.config.max_stored or not self._is_new(dets):
+            if len(self._views) >= self.config.max_stored or not self._is_new(dets, geometry):
                 return False
             self._image_size = (int(dets.image_size[0]), int(dets.image_size[1]))
             self._views.append(dets)
