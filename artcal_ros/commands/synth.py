@@ -26,6 +26,7 @@ from artcal_ros.core.errors import ArtcalError, ParameterError
 from artcal_ros.core.synth import (
     ENCODINGS,
     PRESETS,
+    Backdrop,
     Camera,
     Photometry,
     random_poses,
@@ -84,13 +85,16 @@ def write_dataset(board: Board, cam: Camera, out: str | Path, *, frames: int, se
     poses = make(board, cam, frames, rng, partial_fraction=partial_fraction)
     records = []
     phot_rng = np.random.default_rng([seed, 1])
+    # one room for the whole sequence: the background moves with the camera, as it should
+    wall = Backdrop.random(board, np.random.default_rng([seed, 2]))
     if bag:
         from artcal_ros.bag import BagWriter
         from artcal_ros.core.images import numpy_to_image
         with BagWriter(out, storage="directory", overwrite=overwrite) as writer:
             for i, (rvec, tvec) in enumerate(poses):
                 view = render_view(board, cam, rvec, tvec, rng=rng, encoding=encoding,
-                                   photometry=frame_photometry(photometry, phot_rng))
+                                   photometry=frame_photometry(photometry, phot_rng),
+                               backdrop=wall)
                 stamp = BAG_START_NS + round(i * 1e9 / rate_hz)
                 writer.write(topic, "sensor_msgs/msg/Image", stamp,
                              numpy_to_image(view.image, encoding, stamp, "camera"))
@@ -104,7 +108,8 @@ def write_dataset(board: Board, cam: Camera, out: str | Path, *, frames: int, se
             raise ArtcalError(f"--out: cannot create directory {out}: {e.strerror}") from e
         for i, (rvec, tvec) in enumerate(poses):
             view = render_view(board, cam, rvec, tvec, rng=rng, encoding=encoding,
-                               photometry=frame_photometry(photometry, phot_rng))
+                               photometry=frame_photometry(photometry, phot_rng),
+                               backdrop=wall)
             name = f"frame_{i:04d}.png"
             if not cv2.imwrite(str(out / name), view.image):
                 raise ArtcalError(f"cannot write {out / name}")

@@ -30,12 +30,12 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.errors import ParameterError
+from artcal_ros.core.synth_backdrop import Backdrop
 from artcal_ros.core.synth_camera import PRESETS, Camera, project_points, rays_from_pixels
 from artcal_ros.core.synth_photometry import (
     ENCODINGS,
     Photometry,
     blur,
-    clutter_image,
     sense_and_encode,
     vignette,
 )
@@ -51,7 +51,8 @@ from artcal_ros.core.synth_truth import (
 )
 
 __all__ = [
-    "ENCODINGS", "PRESETS", "Camera", "Photometry", "RenderedView", "Truth", "TruthFrame",
+    "ENCODINGS", "PRESETS", "Backdrop", "Camera", "Photometry", "RenderedView", "Truth",
+    "TruthFrame",
     "board_params", "frame_record", "load_truth", "marker_truth", "project_points",
     "random_poses", "rays_from_pixels", "render_linear", "render_view", "smooth_poses",
     "write_truth",
@@ -99,7 +100,7 @@ _LUMA = np.array([0.2126, 0.7152, 0.0722])   # linear RGB -> luminance
 
 def render_linear(board: Board, cam: Camera, rvec: np.ndarray, tvec: np.ndarray, *,
                   photometry: Photometry | None = None, rng: np.random.Generator | None = None,
-                  color: bool = False) -> np.ndarray:
+                  color: bool = False, backdrop: Backdrop | None = None) -> np.ndarray:
     """Linear radiance reaching the sensor, after optics, before exposure and noise.
 
     Args:
@@ -109,6 +110,9 @@ def render_linear(board: Board, cam: Camera, rvec: np.ndarray, tvec: np.ndarray,
             :meth:`Photometry.exact` the result is each pixel's white area fraction.
         rng: source of the random lighting direction, clutter and blur direction.
         color: return (H, W, 3) linear RGB instead of (H, W) luminance.
+        backdrop: the cluttered wall behind the board (when ``photometry.clutter``); None
+            makes a new random one. Pass the same one to every frame of a sequence so the
+            background stays put as the camera moves.
 
     Returns:
         (H, W) or (H, W, 3) float64; 1.0 is full scale at exposure 1.
@@ -124,7 +128,8 @@ def render_linear(board: Board, cam: Camera, rvec: np.ndarray, tvec: np.ndarray,
     light = phot.illumination * np.maximum(1.0 + phot.gradient * along, 0.0)
     board_rad = cov.alpha * light * (phot.ink + (phot.paper - phot.ink) * cov.white)
     if phot.clutter:
-        back = clutter_image(cam.size, rng)
+        wall = backdrop if backdrop is not None else Backdrop.random(board, rng)
+        back = wall.render(cam, rvec, tvec)
     else:
         back = np.full((cam.height, cam.width, 3), 0.15, dtype=np.float32)
     tint = np.asarray(phot.tint, dtype=np.float64)
@@ -143,10 +148,11 @@ def render_linear(board: Board, cam: Camera, rvec: np.ndarray, tvec: np.ndarray,
 
 def render_view(board: Board, cam: Camera, rvec: np.ndarray, tvec: np.ndarray, *,
                 photometry: Photometry | None = None, rng: np.random.Generator | None = None,
-                encoding: str = "mono8") -> RenderedView:
+                encoding: str = "mono8", backdrop: Backdrop | None = None) -> RenderedView:
     """Render one frame (see :func:`render_linear`) and its truth.
 
     Args:
+        photometry, rng, backdrop: as for :func:`render_linear`.
         encoding: ``mono8`` | ``mono16`` | ``bgr8`` | ``rgb8``.
     """
     if encoding not in ENCODINGS:
@@ -156,7 +162,8 @@ def render_view(board: Board, cam: Camera, rvec: np.ndarray, tvec: np.ndarray, *
     rvec = np.asarray(rvec, dtype=np.float64).reshape(3)
     tvec = np.asarray(tvec, dtype=np.float64).reshape(3)
     color = encoding in ("bgr8", "rgb8")
-    lin = render_linear(board, cam, rvec, tvec, photometry=phot, rng=rng, color=color)
+    lin = render_linear(board, cam, rvec, tvec, photometry=phot, rng=rng, color=color,
+                        backdrop=backdrop)
     image = sense_and_encode(lin, phot, rng, encoding)
     corners, centers, inside, side = marker_truth(board, cam, rvec, tvec)
     return RenderedView(image=image, encoding=encoding, rvec=rvec, tvec=tvec,

@@ -134,11 +134,13 @@ def clutter_image(size: tuple[int, int], rng: np.random.Generator) -> np.ndarray
     coarse = cv2.resize(base, (48, 27), interpolation=cv2.INTER_CUBIC)
     img8 = cv2.resize(coarse, (w, h), interpolation=cv2.INTER_LINEAR)
     scale = max(w, h)
-    for _ in range(int(rng.integers(20, 45))):
+    # about 30 shapes per 640 x 480 of picture
+    count = min(int(rng.integers(20, 45) * max(1.0, w * h / (640 * 480))), 300)
+    for _ in range(count):
         color = tuple(int(c) for c in rng.integers(5, 235, size=3))
         kind = rng.integers(0, 4)
         cx, cy = rng.uniform(0, w), rng.uniform(0, h)
-        s = rng.uniform(0.02, 0.25) * scale
+        s = rng.uniform(0.015, 0.15) * scale
         if kind == 0:      # rotated rectangle
             box = cv2.boxPoints(((cx, cy), (s, s * rng.uniform(0.2, 1.5)), rng.uniform(0, 180)))
             cv2.fillPoly(img8, [np.round(box * 16).astype(np.int32)], color, cv2.LINE_AA, 4)
