@@ -70,15 +70,20 @@ class Backdrop:
         far = ~hit | (np.abs(mx) > 4 * tex_w) | (np.abs(my) > 4 * tex_h)
         mx = np.where(far, 0.0, mx).astype(np.float32).reshape(gh, gw)
         my = np.where(far, 0.0, my).astype(np.float32).reshape(gh, gw)
+        # where one pixel spans many texels (grazing views) the texture would alias: fade it
+        # to its mean colour, as an out-of-focus, far-away wall would look
+        along_x = np.hypot(np.gradient(mx, axis=1), np.gradient(my, axis=1))
+        along_y = np.hypot(np.gradient(mx, axis=0), np.gradient(my, axis=0))
+        texels = np.maximum(along_x, along_y) / step    # texels per image pixel
+        fade = np.clip((texels - 2.0) / 6.0, 0.0, 1.0).astype(np.float32)
+        fade[far.reshape(gh, gw)] = 1.0
         # grid point (i, j) is pixel (step * j, step * i): an affine warp to the full image
         to_full = np.array([[1.0 / step, 0, 0], [0, 1.0 / step, 0]], dtype=np.float64)
-        mx, my, far_f = (cv2.warpAffine(a, to_full, (w, h), flags=cv2.INTER_LINEAR
-                                        | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
-                         for a in (mx, my, far.reshape(gh, gw).astype(np.float32)))
-        far = (far_f > 0).ravel()
-        mean = self.texture.reshape(-1, 3).mean(axis=0)
-        out = cv2.remap(self.texture, mx.reshape(h, w), my.reshape(h, w), cv2.INTER_LINEAR,
+        mx, my, fade = (cv2.warpAffine(a, to_full, (w, h), flags=cv2.INTER_LINEAR
+                                       | cv2.WARP_INVERSE_MAP, borderMode=cv2.BORDER_REPLICATE)
+                        for a in (mx, my, fade))
+        mean = self.texture.reshape(-1, 3).mean(axis=0).astype(np.float32)
+        out = cv2.remap(self.texture, mx, my, cv2.INTER_LINEAR,
                         borderMode=cv2.BORDER_REFLECT_101)
-        out = np.asarray(out, dtype=np.float32)
-        out.reshape(-1, 3)[far] = mean
-        return out
+        wall: np.ndarray = np.asarray(out, dtype=np.float32)
+        return np.asarray(wall + fade[..., None] * (mean - wall), dtype=np.float32)

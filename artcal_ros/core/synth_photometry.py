@@ -137,7 +137,8 @@ def clutter_image(size: tuple[int, int], rng: np.random.Generator) -> np.ndarray
     # about 30 shapes per 640 x 480 of picture
     count = min(int(rng.integers(20, 45) * max(1.0, w * h / (640 * 480))), 300)
     for _ in range(count):
-        color = tuple(int(c) for c in rng.integers(5, 235, size=3))
+        grey = rng.uniform(10, 230)   # mostly muted colours, like a room
+        color = tuple(int(grey + 0.45 * (c - grey)) for c in rng.uniform(5, 235, size=3))
         kind = rng.integers(0, 4)
         cx, cy = rng.uniform(0, w), rng.uniform(0, h)
         s = rng.uniform(0.015, 0.15) * scale
