@@ -19,6 +19,10 @@ under 0.01 px. Light, optics and sensor follow in linear light
 (:mod:`artcal_ros.core.synth_photometry`).
 
 Pose convention: T_cam_board (rvec Rodrigues, tvec metres), ``p_cam = R p_board + t``.
+
+Measuring edges against the truth: use :meth:`Photometry.exact` (or
+:func:`render_linear`): linear light, no noise, unit contrast. In gamma-encoded
+output the grey midpoint of a blurred edge is *not* the edge.
 """
 
 from __future__ import annotations

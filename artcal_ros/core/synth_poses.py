@@ -159,6 +159,7 @@ def smooth_poses(board: Board, cam: Camera, n: int, rng: np.random.Generator, *,
 
     Key views come from :func:`random_poses` (``kwargs`` are passed on); between them the
     camera centre and orientation are eased (smoothstep) so motion starts and stops gently.
+    Views between key views are not checked: a few may show fewer markers.
     """
     if n <= 0:
         return []
