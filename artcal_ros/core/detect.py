@@ -29,11 +29,12 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect_edges import refine_quads
-from artcal_ros.core.detect_lens import LensModel
+from artcal_ros.core.detect_lens import DivisionLens, LensModel
 from artcal_ros.core.detect_verify import (
     border_is_dark,
     code_errors,
     diagonal_centres,
+    inner_border_cells,
     neighbour_support,
 )
 from artcal_ros.core.detections import Detections
@@ -54,8 +55,10 @@ class DetectorConfig:
         refine_edges: False keeps the quad finder's corners (for comparisons only).
         margin_px: edge profiles closer than this to a corner are skipped.
         level_modules: half-width of the edge profile window, in modules.
-        curve_min_px: image sides at least this long may be fitted as parabolas
+        curve_min_px: image sides at least this long are fitted as parabolas
             (lens distortion bends them) when no camera model is given.
+        estimate_lens: without a camera model, estimate a one-parameter division
+            lens from those parabolas (plumb lines) and bend every side by it.
         max_bit_errors: most code cells (of bits^2) that may disagree with the
             id when a marker is supported by a neighbour.
         max_bit_errors_isolated: the same for a marker no neighbour can vouch
@@ -69,9 +72,11 @@ class DetectorConfig:
     gamma: float = 2.2
     gamma_16bit: float | None = None
     refine_edges: bool = True
-    margin_px: float = 2.5
+    margin_px: float = 1.5
     level_modules: float = 0.4
-    curve_min_px: float = 60.0
+    curve_min_px: float = 40.0
+    estimate_lens: bool = True
+    code_rows: int = 1
     max_bit_errors: int = 2
     max_bit_errors_isolated: int | None = 0
     neighbour_tolerance: float = 0.25
@@ -119,12 +124,14 @@ def to_gray8(gray: np.ndarray) -> np.ndarray:
 
 
 def linearise(gray: np.ndarray, gamma: float) -> np.ndarray:
-    """(H, W) float64 linear intensity in 0..1 from encoded grey values."""
-    full = 65535.0 if gray.dtype == np.uint16 else 255.0
+    """(H, W) float32 linear intensity in 0..1 from encoded grey values."""
     if gray.dtype == np.uint8:
-        lut = (np.arange(256) / 255.0) ** gamma
+        lut = ((np.arange(256) / 255.0) ** gamma).astype(np.float32)
         return lut[gray]
-    return (gray.astype(np.float64) / full) ** gamma
+    if gamma == 1.0:
+        return gray.astype(np.float32) * np.float32(1.0 / 65535.0)
+    lut = ((np.arange(65536) / 65535.0) ** gamma).astype(np.float32)
+    return lut[gray]
 
 
 def _aruco_detector(board: Board, config: DetectorConfig) -> cv2.aruco.ArucoDetector:
@@ -149,6 +156,9 @@ class Detector:
         self.board = board
         self.config = config or DetectorConfig()
         self._aruco = _aruco_detector(board, self.config)
+        # quiet zone around a marker's border, in modules (mixed boards: half the gap)
+        gap = board.marker_separation / board.module_length
+        self._quiet_modules = 0.5 * gap if board.polarity == "mixed" else gap
 
     def detect(self, image: np.ndarray, camera: Any = None, *, source: str = "") -> Detections:
         """Detect the board's markers in one image.
@@ -186,13 +196,20 @@ class Detector:
             keep = dark == expected
             quads, ids, dark = quads[keep], ids[keep], dark[keep]
 
-        lens = LensModel.from_any(camera) if camera is not None else None
+        lens: LensModel | DivisionLens | None = (
+            LensModel.from_any(camera) if camera is not None else None)
         corners: np.ndarray
         if self.config.refine_edges and len(ids):
             fit = refine_quads(lin, quads, dark, bits, margin_px=self.config.margin_px,
                                level_modules=self.config.level_modules,
                                curve_min_px=self.config.curve_min_px,
-                               allow_curvature=lens is None, lens=lens)
+                               passes=2,
+                               allow_curvature=lens is None and self.config.estimate_lens,
+                               lens=lens,
+                               inner_same=inner_border_cells(self.board, ids,
+                                                             rows=self.config.code_rows),
+                               quiet_modules=self._quiet_modules)
+            lens = fit.lens if fit.lens is not None else lens
             moved = np.abs(fit.corners_px - quads).max(axis=(1, 2))
             keep = fit.ok & (moved < 3.0)
             corners, sigma = fit.corners_px[keep], fit.corner_sigma_px[keep]

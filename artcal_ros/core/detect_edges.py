@@ -29,11 +29,13 @@ corner k is the intersection of sides k-1 and k.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
-from artcal_ros.core.detect_lens import LensModel
+from artcal_ros.core.detect_lens import DivisionLens, LensModel
+from artcal_ros.core.detect_model import fit_step_model, phi_cdf
 
 _STEP = 0.25  # profile sample spacing, pixels
 
@@ -48,6 +50,8 @@ class EdgeFit:
         side_rms_px: (M, 4) float64, RMS residual of each side's edge points about its fit.
         contrast: (M, 4) float64, median |hi - lo| of each side's profiles (linear units).
         ok: (M,) bool, every side had enough edge points for a fit.
+        lens: the lens model the straight lines were fitted under: the one given,
+            one estimated from the edges' curvature (:class:`DivisionLens`), or None.
     """
 
     corners_px: np.ndarray
@@ -55,6 +59,7 @@ class EdgeFit:
     side_rms_px: np.ndarray
     contrast: np.ndarray
     ok: np.ndarray
+    lens: LensModel | DivisionLens | None = None
 
 
 def bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
@@ -123,7 +128,7 @@ class _SideModel:
 
     def offset(self, t: np.ndarray) -> np.ndarray:
         """(S, K) edge offsets at t (S, K)."""
-        return np.einsum("skp,sp->sk", self.basis(t), self.coef)
+        return np.matmul(self.basis(t), self.coef[..., None])[..., 0]
 
     def fit(self, t: np.ndarray, s: np.ndarray, valid: np.ndarray,
             min_sigma_px: float, reject_sigmas: float, iterations: int = 3) -> None:
@@ -141,25 +146,30 @@ class _SideModel:
             * eye[2][None, None, :]
         for _ in range(iterations):
             AtW = A * w[..., None]
-            N = np.einsum("skp,skq->spq", AtW, A) + pad + 1e-9 * eye
-            rhs = np.einsum("skp,sk->sp", AtW, s)
-            coef = np.linalg.solve(N, rhs[..., None])[..., 0]
-            res = s - np.einsum("skp,sp->sk", A, coef)
-            absr = np.where(valid, np.abs(res), np.nan)
-            with np.errstate(all="ignore"):
-                mad = 1.4826 * np.nanmedian(np.where(w > 0, absr, np.nan), axis=1)
-            scale = np.maximum(np.nan_to_num(mad, nan=min_sigma_px), min_sigma_px)
+            N = np.matmul(AtW.transpose(0, 2, 1), A) + pad + 1e-9 * eye
+            rhs = np.matmul(AtW.transpose(0, 2, 1), s[..., None])
+            coef = np.linalg.solve(N, rhs)[..., 0]
+            res = s - np.matmul(A, coef[..., None])[..., 0]
+            scale = np.maximum(1.4826 * _masked_median(np.abs(res), w > 0), min_sigma_px)
             w = (valid & (np.abs(res) <= reject_sigmas * scale[:, None])).astype(np.float64)
         count = w.sum(axis=1)
         dof = np.maximum(count - self.order, 1.0)
         var = (w * res * res).sum(axis=1) / dof
         AtW = A * w[..., None]
-        N = np.einsum("skp,skq->spq", AtW, A) + pad + 1e-9 * eye
+        N = np.matmul(AtW.transpose(0, 2, 1), A) + pad + 1e-9 * eye
         self.coef = coef
         self.cov = np.linalg.inv(N) * var[:, None, None]
         self.cov[:, 2, 2] *= (self.order >= 3)
         self.rms = np.sqrt(var)
         self.count = count.astype(np.intp)
+
+
+def _masked_median(x: np.ndarray, mask: np.ndarray) -> np.ndarray:
+    """Per-row median of x (S, K) over mask (S, K); 0 for empty rows."""
+    srt = np.sort(np.where(mask, x, np.inf), axis=1)
+    count = mask.sum(axis=1)
+    mid = np.take_along_axis(srt, np.maximum(count // 2, 0)[:, None], 1)[:, 0]
+    return np.where(count > 0, mid, 0.0)
 
 
 def _profiles(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
@@ -177,7 +187,7 @@ def _coarse_offsets(prof: np.ndarray, offsets: np.ndarray, sign: np.ndarray,
     Returns (S, K) offsets and a validity mask.
     """
     g = np.zeros_like(prof)
-    g[..., 2:-2] = prof[..., 4:] - prof[..., :-4]  # 1-pixel central difference
+    g[..., 1:-1] = prof[..., 2:] - prof[..., :-2]  # 1-pixel central difference
     g *= sign[:, None, None]
     inside = (offsets[None, :] >= lo[:, None]) & (offsets[None, :] <= hi[:, None])
     g = np.where(inside[:, None, :], g, -np.inf)
@@ -190,21 +200,47 @@ def _coarse_offsets(prof: np.ndarray, offsets: np.ndarray, sign: np.ndarray,
         delta = np.where(np.isfinite(denom) & (denom < 0), 0.5 * (gm - gp) / denom, 0.0)
     delta = np.clip(np.nan_to_num(delta), -0.5, 0.5)
     valid = np.isfinite(g0) & (g0 > 0)
-    return offsets[j] + delta * _STEP, valid
+    return offsets[j] + delta * (offsets[1] - offsets[0]), valid
 
 
 def _area_offsets(prof: np.ndarray, r_steps: np.ndarray, centre: int,
                   min_contrast: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Symmetric-area edge offsets (see the module docstring) per profile.
 
+    When the blur is wide compared with the window the raw estimate shrinks
+    toward the window centre by a gain c < 1 (the normalised profile is nearly
+    linear inside the window). The gain is measured per side by shifting the
+    window one grid step either way, and divided out: one Newton step.
+
     Args:
-        prof: (S, K, J) intensities on a grid centred at index ``centre``.
+        prof: (S, K, J) intensities on a grid centred at index ``centre``; the grid
+            must reach one step beyond every side's window.
         r_steps: (S,) half window per side, in grid steps.
         centre: index of offset 0.
         min_contrast: profiles with |hi - lo| below this are invalid.
 
     Returns:
         offsets (S, K) pixels, valid (S, K), contrast (S, K).
+    """
+    r = r_steps * _STEP
+    raw = []
+    for shift in (0, -1, 1):
+        off, span = _window_area(prof, r_steps, centre + shift)
+        raw.append(off)
+    valid = np.abs(span) >= min_contrast
+    slope = (raw[1] - raw[2]) / (2.0 * _STEP)
+    gain = _masked_median(np.where(np.isfinite(slope), slope, 0.0), valid)
+    gain = np.clip(gain, 0.1, 1.5)
+    off = raw[0] / gain[:, None]
+    valid &= np.isfinite(off) & (np.abs(off) <= r[:, None])
+    return np.nan_to_num(off), valid, np.abs(span)
+
+
+def _window_area(prof: np.ndarray, r_steps: np.ndarray, centre: int
+                 ) -> tuple[np.ndarray, np.ndarray]:
+    """Raw ``r - area`` offsets (S, K) of windows [-r, r] about grid index ``centre``.
+
+    Also returns the level difference hi - lo (S, K) of the window at ``centre``.
     """
     _, K, J = prof.shape
     idx = np.arange(J)
@@ -213,25 +249,22 @@ def _area_offsets(prof: np.ndarray, r_steps: np.ndarray, centre: int,
     span = hi - lo
     with np.errstate(all="ignore"):
         q = (prof - lo[..., None]) / span[..., None]
-    inside = np.abs(idx[None, :] - centre) <= r_steps[:, None]
+    dist = np.abs(idx[None, :] - centre)
     # trapezoid rule on [-r, r]: half weight at the two ends
-    wts = inside.astype(np.float64)
-    ends = np.abs(idx[None, :] - centre) == r_steps[:, None]
-    wts[ends] = 0.5
-    area = np.einsum("skj,sj->sk", np.nan_to_num(q), wts) * _STEP
-    r = r_steps * _STEP
-    off = r[:, None] - area
-    valid = np.abs(span) >= min_contrast
-    valid &= np.abs(off) <= r[:, None]
-    return off, valid, np.abs(span)
+    wts = (dist <= r_steps[:, None]).astype(np.float64)
+    wts[dist == r_steps[:, None]] = 0.5
+    area = np.matmul(np.nan_to_num(q), wts[:, :, None])[..., 0] * _STEP
+    return r_steps[:, None] * _STEP - area, span
 
 
 def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bits: int, *,
-                 margin_px: float = 2.5, level_modules: float = 0.4,
+                 margin_px: float = 1.5, level_modules: float = 0.4,
                  min_level_px: float = 0.75, max_level_px: float = 2.5,
                  curve_min_px: float = 60.0, allow_curvature: bool = True,
                  min_contrast: float = 0.02, passes: int = 2,
-                 lens: LensModel | None = None) -> EdgeFit:
+                 lens: LensModel | DivisionLens | None = None,
+                 inner_same: np.ndarray | None = None,
+                 quiet_modules: float = 1.0, method: str = "model") -> EdgeFit:
     """Refine approximate quads to sub-pixel corners from their border edges.
 
     Args:
@@ -242,14 +275,23 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         bits: code cells per side (the border adds two modules).
         margin_px: profiles closer than this to a corner are skipped (the other
             side's blur reaches there).
-        level_modules, min_level_px, max_level_px: half width r of the profile
-            window, in modules, clamped to [min, max] pixels.
+        level_modules, min_level_px, max_level_px: smallest half width r of the
+            profile window, in modules (it widens up to the room before the next
+            edge), clamped to [min, max] pixels.
         curve_min_px: sides at least this long may be fitted with a parabola
             (kept only where its curvature is significant).
         allow_curvature: False fits straight lines only (use it when the image
             has been undistorted or a camera model handles distortion).
         min_contrast: smallest |hi - lo| (linear units) for a usable profile.
         passes: re-centred passes of the fine estimator.
+        inner_same: optional (M, 4, rows, bits) bool (see
+            :func:`detect_verify.inner_border_cells`): per side, the code cells of
+            the first rows behind the border (in side order) that have the
+            border's colour. The model fit uses them to model the code's edges
+            behind the border; without them the window stops short of the code.
+        quiet_modules: width of the quiet zone outside the border, in modules.
+        method: ``model`` (blurred-step model fit, :mod:`detect_model`) or ``area``
+            (the symmetric-area estimator of this module's docstring).
         lens: optional lens model; the final edge points are then mapped to
             undistorted pixels, fitted with straight lines there, and the
             corners mapped back.
@@ -262,7 +304,7 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         z = np.zeros((0, 4))
         return EdgeFit(np.zeros((0, 4, 2)), z, z, z, np.zeros(0, dtype=bool))
     quads = np.asarray(quads, dtype=np.float64)
-    lin = np.asarray(lin, dtype=np.float64)
+    lin = np.asarray(lin, dtype=np.float32)
     a, u, n, length = _side_frames(quads)
     S = len(a)
     module = length / (bits + 2)
@@ -282,44 +324,282 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
     # coarse pass: strongest gradient near the approximate side (the quad finder's
     # contour runs up to a pixel inside the true edge)
     reach = np.minimum(0.45 * module, 4.0)
-    offsets: np.ndarray = np.arange(-4.0 - 1.0, 5.5 + 1.0 + 1e-9, _STEP)
-    prof = _profiles(lin, a, u, n, t, np.zeros_like(t), offsets)
+    # every other profile is enough for this first line
+    tc, pc = t[:, ::2], present[:, ::2]
+    offsets: np.ndarray = np.arange(-4.0 - 1.0, 5.5 + 1.0 + 1e-9, 2 * _STEP)
+    prof = _profiles(lin, a, u, n, tc, np.zeros_like(tc), offsets)
     s_edge, valid = _coarse_offsets(prof, offsets, sign, -reach, reach + 1.5)
-    valid &= present
-    model.fit(t, s_edge, valid, min_sigma_px=0.05, reject_sigmas=3.0)
+    valid &= pc
+    model.fit(tc, s_edge, valid, min_sigma_px=0.05, reject_sigmas=3.0)
 
-    r_steps = np.round(np.clip(level_modules * module, min_level_px, max_level_px)
-                       / _STEP).astype(np.intp)
-    jmax = int(r_steps.max())
+    used_lens: LensModel | DivisionLens | None = lens
+    if method == "model":
+        # lines (parabolas on long sides when curvature is allowed); then, with a lens
+        # given or estimated from those parabolas, every side bent as the lens bends a
+        # straight edge and only its offset and angle fitted
+        contrast = _model_passes(lin, quads, a, u, n, t, present, model, module, bits,
+                                 inner_same, quiet_modules, passes, order)
+        valid = present
+        if lens is None and allow_curvature:
+            used_lens = _estimate_division(model, quads, t, valid, lin.shape)
+        if used_lens is not None:
+            model.order = np.full(S, 3)
+            model.coef[:, 2] = _lens_bend(used_lens, a, u, n, length)
+            contrast = _model_passes(lin, quads, a, u, n, t, present, model, module, bits,
+                                     inner_same, quiet_modules, 1, np.full(S, 2))
+        else:
+            _drop_flat_parabolas(model, None)
+        corners, sigma = _intersect(model, a, u, n, M)
+    else:
+        contrast, valid = _area_passes(lin, a, u, n, t, present, model, module, k_side,
+                                       inner_same, quiet_modules, level_modules,
+                                       min_level_px, max_level_px, min_contrast, passes)
+        corners, sigma = _intersect(model, a, u, n, M)
+        if lens is not None:
+            corners, _, _ = _straight_in_undistorted(
+                lens, a, u, n, t, model.offset(t), valid, corners, M)
+    side_ok = model.count >= 4
+    ok = side_ok.reshape(M, 4).all(axis=1) & np.isfinite(corners).all(axis=(1, 2))
+    return EdgeFit(corners, sigma, model.rms.reshape(M, 4), contrast.reshape(M, 4), ok,
+                   used_lens)
+
+
+def _area_passes(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
+                 t: np.ndarray, present: np.ndarray, model: _SideModel, module: np.ndarray,
+                 k_side: np.ndarray, inner_same: np.ndarray | None, quiet_modules: float,
+                 level_modules: float, min_level_px: float, max_level_px: float,
+                 min_contrast: float, passes: int) -> tuple[np.ndarray, np.ndarray]:
+    """Symmetric-area passes (module docstring); updates ``model``; returns contrast, valid."""
+    S, K = t.shape
+    # window half-width: stay a blur allowance clear of the next edge on either side
+    allowance = 1.0 + 0.25 * module
+    inner_room = module - allowance
+    if inner_same is not None:
+        same0 = np.asarray(inner_same, bool).reshape(S, -1, model_bits(inner_same))[:, 0]
+        clean = _clean_profiles(t, model.length, same0)
+        enough = (clean & present).sum(axis=1) >= np.maximum(6, 0.25 * k_side)
+        present = np.where(enough[:, None], present & clean, present)
+        inner_room = np.where(enough, 2.0 * module - allowance, inner_room)
+    outer_room = quiet_modules * module - allowance
+    r_px = np.maximum(np.minimum(inner_room, outer_room), level_modules * module)
+    r_steps = np.round(np.clip(r_px, min_level_px, max_level_px) / _STEP).astype(np.intp)
+    jmax = int(r_steps.max()) + 1
     offsets = np.arange(-jmax, jmax + 1) * _STEP
     contrast: np.ndarray = np.zeros((S, K))
+    valid = present
     for _ in range(max(passes, 1)):
         s0 = model.offset(t)
         prof = _profiles(lin, a, u, n, t, s0, offsets)
         off, valid, contrast = _area_offsets(prof, r_steps, jmax, min_contrast)
         valid &= present
         model.fit(t, s0 + off, valid, min_sigma_px=0.01, reject_sigmas=3.0)
+    _drop_flat_parabolas(model, lambda: model.fit(t, s0 + off, valid, min_sigma_px=0.01,
+                                                  reject_sigmas=3.0))
+    med = np.nanmedian(np.where(valid, contrast, np.nan), axis=1) if valid.any() \
+        else np.zeros(S)
+    return np.nan_to_num(med), valid
 
-    # keep a parabola only where its curvature is significant; otherwise refit a line
-    curved = order >= 3
-    if curved.any():
-        c2 = model.coef[:, 2]
-        sd = np.sqrt(np.maximum(model.cov[:, 2, 2], 1e-30))
-        keep = curved & (np.abs(c2) > 3.0 * sd)
-        if (curved & ~keep).any():
-            model.order = np.where(keep, 3, 2)
-            model.fit(t, s0 + off, valid, min_sigma_px=0.01, reject_sigmas=3.0)
 
-    corners, sigma = _intersect(model, a, u, n, M)
-    if lens is not None:
-        corners, sigma, model = _straight_in_undistorted(
-            lens, a + 0.0, u, n, t, s0 + off, valid, corners, M)
-    side_ok = model.count >= 4
-    ok = side_ok.reshape(M, 4).all(axis=1) & np.isfinite(corners).all(axis=(1, 2))
-    med_contrast = np.nanmedian(np.where(valid, contrast, np.nan), axis=1) \
-        if valid.any() else np.zeros(S)
-    return EdgeFit(corners, sigma, model.rms.reshape(M, 4),
-                   np.nan_to_num(med_contrast).reshape(M, 4), ok)
+def model_bits(inner_same: np.ndarray) -> int:
+    """Code cells per side of an ``inner_same`` array ((M, 4, bits) or (M, 4, rows, bits))."""
+    return int(np.shape(inner_same)[-1])
+
+
+def _drop_flat_parabolas(model: _SideModel, refit: Callable[[], None] | None) -> None:
+    """Keep a parabola only where its curvature is significant (3 sigma)."""
+    curved = model.order >= 3
+    if not curved.any():
+        return
+    sd = np.sqrt(np.maximum(model.cov[:, 2, 2], 1e-30))
+    keep = curved & (np.abs(model.coef[:, 2]) > 3.0 * sd)
+    if (curved & ~keep).any():
+        model.order = np.where(keep, 3, 2)
+        if refit is not None:
+            refit()
+        else:
+            model.coef[~keep, 2] = 0.0
+            model.cov[~keep, 2, :] = 0.0
+            model.cov[~keep, :, 2] = 0.0
+
+
+def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarray,
+                  n: np.ndarray, t: np.ndarray, present: np.ndarray, model: _SideModel,
+                  module: np.ndarray, bits: int, inner_same: np.ndarray | None,
+                  quiet_modules: float, passes: int, fit_order: np.ndarray) -> np.ndarray:
+    """Blurred-step model fits (see :mod:`detect_model`); updates ``model``; returns contrast.
+
+    ``fit_order`` (S,) says per side whether the parabola term is free (3) or held
+    at its current value (2: a straight line, or a lens-given bend).
+    """
+    S = t.shape[0]
+    M = S // 4
+    contrast = np.zeros(S)
+    blur = np.full(S, 0.8)
+    for _ in range(max(passes, 1)):
+        corners, _ = _intersect(model, a, u, n, M)
+        bad = ~np.isfinite(corners).all(axis=(1, 2))
+        corners[bad] = quads[bad]
+        s0 = model.offset(t)
+        base = a[:, None, :] + t[..., None] * u[:, None, :] + s0[..., None] * n[:, None, :]
+        _, m_px = _module_geometry(corners, base, n, bits)
+        m_side = np.where(present, m_px, np.nan)
+        with np.errstate(all="ignore"):
+            m_med = np.nan_to_num(np.nanmedian(m_side, axis=1), nan=1.0)
+        rows = 0 if inner_same is None else int(np.shape(inner_same)[2])
+        if rows == 0:
+            inner = np.clip(m_med - 1.0, 1.0, 5.0)
+        else:
+            inner = np.clip(np.minimum(rows * m_med + 2.0, (rows + 1) * m_med - 1.5), 1.0, 5.0)
+        outer = np.clip(quiet_modules * m_med - 1.2, 1.5, 5.0)
+        # samples: the pixels nearest a grid of points along and across each side, so
+        # the model sees raw pixel values (interpolation would add its own, phase-
+        # dependent edge shifts)
+        offsets = np.arange(-np.ceil(inner.max()), np.ceil(outer.max()) + 1.0)
+        pts = base[:, :, None, :] + offsets[None, None, :, None] * n[:, None, None, :]
+        h, w = lin.shape
+        px = np.clip(np.rint(pts[..., 0]), 0, w - 1)
+        py = np.clip(np.rint(pts[..., 1]), 0, h - 1)
+        values = lin[py.astype(np.intp), px.astype(np.intp)].astype(np.float64)
+        rel_x = px - a[:, None, None, 0]
+        rel_y = py - a[:, None, None, 1]
+        t_s = rel_x * u[:, None, None, 0] + rel_y * u[:, None, None, 1]
+        s_s = rel_x * n[:, None, None, 0] + rel_y * n[:, None, None, 1]
+        basis = model.basis(t_s.reshape(S, -1)).reshape(*t_s.shape, 3)
+        e_s = np.einsum("skjp,sp->skj", basis, model.coef)
+        mask = (present[..., None] & (s_s - e_s >= -inner[:, None, None])
+                & (s_s - e_s <= outer[:, None, None]))
+        along_s, m_s = _module_geometry(
+            corners, np.stack([px, py], axis=-1).reshape(S, -1, 2), n, bits)
+        along_s = along_s.reshape(t_s.shape)
+        m_s = m_s.reshape(t_s.shape)
+        if rows:
+            module_along = (model.length / (bits + 2))[:, None, None]
+            same = np.asarray(inner_same, bool).reshape(S, rows, bits)
+            far = np.stack([_far_cells(along_s, same[:, r], blur[:, None, None] / module_along)
+                            for r in range(rows)], axis=-1)
+        else:
+            far = np.zeros((*t_s.shape, 1))
+        coef, cov, blur, rms, count = fit_step_model(
+            values, s_s, mask, basis, model.coef, far, m_s, fit_order, n)
+        model.coef = coef
+        model.cov = cov
+        model.rms = rms
+        model.count = count
+        rel = s_s - np.einsum("skjp,sp->skj", basis, coef)
+        with np.errstate(all="ignore"):
+            hi = np.nanmedian(np.where(mask & (rel > 0.7), values, np.nan).reshape(S, -1), 1)
+            lo = np.nanmedian(np.where(mask & (rel < -0.7), values, np.nan).reshape(S, -1), 1)
+        contrast = np.abs(np.nan_to_num(hi - lo))
+    return contrast
+
+
+def _lens_bend(lens: LensModel | DivisionLens, a: np.ndarray, u: np.ndarray, n: np.ndarray,
+               length: np.ndarray) -> np.ndarray:
+    """(S,) parabola coefficient of the image of a straight edge between each side's ends.
+
+    The chord's midpoint is mapped to straightened pixels, where the edge is
+    straight, and back; its offset along the normal is the sag, and the
+    parabola term (tau^2 - 1/3) of the fitted offset is minus the sag.
+    """
+    p0 = a
+    p1 = a + length[:, None] * u
+    und = lens.undistort(np.concatenate([p0, p1]))
+    mid_u = 0.5 * (und[: len(a)] + und[len(a):])
+    mid_d = lens.distort(mid_u)
+    sag = np.einsum("sd,sd->s", mid_d - 0.5 * (p0 + p1), n)
+    return -np.nan_to_num(sag)
+
+
+def _module_geometry(corners: np.ndarray, base: np.ndarray, n: np.ndarray,
+                     bits: int) -> tuple[np.ndarray, np.ndarray]:
+    """Along-side position (in modules, 0..bits+2) and local module width (pixels).
+
+    Args:
+        corners: (M, 4, 2) current quads.
+        base: (S, K, 2) profile base points on the edge.
+        n: (S, 2) outward normals.
+    """
+    M = len(corners)
+    S, K, _ = base.shape
+    size = bits + 2.0
+    square = np.array([[0.0, 0.0], [size, 0.0], [size, size], [0.0, size]])
+    H = _homographies(np.broadcast_to(square, (M, 4, 2)), corners)
+    Hinv = np.linalg.inv(H)
+    pts = base.reshape(M, 4 * K, 2)
+    mod = _apply(Hinv, pts).reshape(S, K, 2)
+    inward = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
+    inward_s = np.tile(inward, (M, 1))
+    inner = _apply(H, (mod + inward_s[:, None, :]).reshape(M, 4 * K, 2)).reshape(S, K, 2)
+    m_px = np.einsum("skd,sd->sk", base - inner, n)
+    side = np.arange(S) % 4
+    along = np.where((side % 2 == 0)[:, None], mod[..., 0], mod[..., 1])
+    along = np.where((side >= 2)[:, None], size - along, along)  # in side direction
+    return along, np.clip(m_px, 0.5, None)
+
+
+def _far_cells(along: np.ndarray, same: np.ndarray, blur_modules: np.ndarray) -> np.ndarray:
+    """(S, K) weight c of the far edge for every profile, blurred along the side.
+
+    Gaussian blur is separable, so behind a straight border the code cells'
+    contribution at along-side position x is the sum over cells of the other
+    colour of ``Phi((x - x0) / w) - Phi((x - x1) / w)``.
+
+    Args:
+        along: (S, ...) position along each side, modules (0 .. bits + 2).
+        same: (S, bits) bool, code cells of one row behind the border that share its colour.
+        blur_modules: (S, 1, ...) blur per side, in modules along the side.
+    """
+    bits = same.shape[1]
+    w = np.maximum(blur_modules, 1e-3)
+    far = np.zeros_like(along)
+    extra = (1,) * (along.ndim - 1)
+    for i in range(bits):
+        other = (~same[:, i]).astype(np.float64).reshape(-1, *extra)
+        far += other * (phi_cdf((along - (i + 1)) / w) - phi_cdf((along - (i + 2)) / w))
+    return far
+
+
+def _homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
+    """(M, 3, 3) homographies mapping src (M, 4, 2) onto dst (M, 4, 2)."""
+    M = len(src)
+    A = np.zeros((M, 8, 8))
+    x, y = src[..., 0], src[..., 1]
+    X, Y = dst[..., 0], dst[..., 1]
+    A[:, 0::2, 0], A[:, 0::2, 1], A[:, 0::2, 2] = x, y, 1.0
+    A[:, 0::2, 6], A[:, 0::2, 7] = -x * X, -y * X
+    A[:, 1::2, 3], A[:, 1::2, 4], A[:, 1::2, 5] = x, y, 1.0
+    A[:, 1::2, 6], A[:, 1::2, 7] = -x * Y, -y * Y
+    b = np.stack([X, Y], axis=-1).reshape(M, 8)
+    with np.errstate(all="ignore"):
+        h = np.linalg.solve(A + 1e-12 * np.eye(8), b[..., None])[..., 0]
+    return np.concatenate([h, np.ones((M, 1))], axis=1).reshape(M, 3, 3)
+
+
+def _apply(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Apply (M, 3, 3) homographies to (M, P, 2) points."""
+    q = np.matmul(pts, H[:, :2, :2].transpose(0, 2, 1)) + H[:, None, :2, 2]
+    w = np.matmul(pts, H[:, 2, :2][:, :, None]) + H[:, None, 2, 2:3]
+    with np.errstate(all="ignore"):
+        return q / w
+
+
+def _clean_profiles(t: np.ndarray, length: np.ndarray, same: np.ndarray) -> np.ndarray:
+    """(S, K) bool: profiles whose neighbourhood along the side has border-coloured cells inside.
+
+    Args:
+        t: (S, K) along-side positions, pixels.
+        length: (S,) side lengths, pixels.
+        same: (S, bits) bool, code cells next to the border, in side order.
+    """
+    bits = same.shape[1]
+    pos = t / length[:, None] * (bits + 2) - 1.0  # in code cells, 0..bits along the code
+    ok = np.ones(t.shape, dtype=bool)
+    for delta in (-0.4, 0.0, 0.4):
+        cell = np.floor(pos + delta).astype(np.intp)
+        inside = (cell >= 0) & (cell < bits)
+        hit = np.take_along_axis(same, np.clip(cell, 0, bits - 1), axis=1)
+        ok &= ~inside | hit
+    return ok
 
 
 def _intersect(model: _SideModel, a: np.ndarray, u: np.ndarray, n: np.ndarray,
@@ -382,7 +662,7 @@ def _offset_var(model: _SideModel, sides: np.ndarray, t: np.ndarray) -> np.ndarr
     return np.einsum("sp,spq,sq->s", x, model.cov[sides], x)
 
 
-def _straight_in_undistorted(lens: LensModel, a: np.ndarray, u: np.ndarray, n: np.ndarray,
+def _straight_in_undistorted(lens: LensModel | DivisionLens, a: np.ndarray, u: np.ndarray, n: np.ndarray,
                              t: np.ndarray, s: np.ndarray, valid: np.ndarray,
                              corners: np.ndarray, M: int
                              ) -> tuple[np.ndarray, np.ndarray, _SideModel]:
@@ -399,3 +679,54 @@ def _straight_in_undistorted(lens: LensModel, a: np.ndarray, u: np.ndarray, n: n
     und_corners, sigma = _intersect(model, a2, u2, n2, M)
     out = lens.distort(und_corners.reshape(-1, 2)).reshape(M, 4, 2)
     return out, sigma, model
+
+
+def _side_curvature(lens: DivisionLens, pts: np.ndarray, quads: np.ndarray,
+                    valid: np.ndarray) -> np.ndarray:
+    """(S,) parabola coefficient of every side's edge points after straightening by ``lens``."""
+    M = len(quads)
+    und = lens.undistort(pts.reshape(-1, 2)).reshape(pts.shape)
+    ua, uu, un, ul = _side_frames(lens.undistort(quads.reshape(-1, 2)).reshape(M, 4, 2))
+    rel = und - ua[:, None, :]
+    t = np.einsum("skd,sd->sk", rel, uu)
+    s = np.einsum("skd,sd->sk", rel, un)
+    model = _SideModel(ul, np.full(len(ul), 3))
+    model.fit(t, s, valid, min_sigma_px=1e-3, reject_sigmas=1e9, iterations=1)
+    return model.coef[:, 2]
+
+
+def _estimate_division(model: _SideModel, quads: np.ndarray, t: np.ndarray,
+                       valid: np.ndarray, shape: tuple[int, ...]) -> DivisionLens | None:
+    """Plumb-line estimate of a division-model lens from all sides' curvature.
+
+    The board's edges are straight, so whatever bends them all in a consistent
+    radial way is lens distortion. The parabola term of every side is, to first
+    order, linear in the division parameter; a weighted least-squares solve
+    (two Gauss-Newton steps) gives the parameter. Returns None when it is not
+    significant (fewer or shorter sides, weak distortion).
+    """
+    if not (model.order >= 3).any():
+        return None
+    h, w = shape[:2]
+    centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    scale = float(np.hypot(w, h) / 2.0)
+    a, u, n, _ = _side_frames(quads)
+    pts = (a[:, None, :] + t[..., None] * u[:, None, :]
+           + model.offset(t)[..., None] * n[:, None, :])
+    use = (model.order >= 3) & (model.count >= 6)
+    var = np.where(use, model.cov[:, 2, 2], np.inf) + 0.003**2
+    weight = np.where(use, 1.0 / var, 0.0)
+    lam = 0.0
+    eps = 1e-3
+    info = 0.0
+    for _ in range(2):
+        c = _side_curvature(DivisionLens(lam, centre, scale), pts, quads, valid)
+        g = (_side_curvature(DivisionLens(lam + eps, centre, scale), pts, quads, valid) - c) / eps
+        ok = use & np.isfinite(c) & np.isfinite(g)
+        info = float((weight[ok] * g[ok] ** 2).sum())
+        if info <= 0:
+            return None
+        lam -= float((weight[ok] * g[ok] * c[ok]).sum()) / info
+    if not np.isfinite(lam) or abs(lam) < 3.0 / np.sqrt(info) or abs(lam) > 1.0:
+        return None
+    return DivisionLens(lam, centre, scale)

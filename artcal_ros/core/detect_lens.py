@@ -80,3 +80,36 @@ class LensModel:
             obj = np.c_[xy, np.ones(len(xy))].reshape(-1, 1, 3)
             out, _ = cv2.projectPoints(obj, np.zeros(3), np.zeros(3), self.K, self.dist)
         return np.asarray(out, dtype=np.float64).reshape(-1, 2)
+
+
+@dataclass(frozen=True)
+class DivisionLens:
+    """One-parameter division model, estimated from the image itself (plumb lines).
+
+    ``p_u = c + (p_d - c) / (1 + lam * |p_d - c|^2 / scale^2)`` maps image pixels
+    ``p_d`` to pixels where the board's straight edges are straight again.
+
+    Attributes:
+        lam: distortion parameter (negative: barrel), dimensionless.
+        centre: (2,) distortion centre, pixels.
+        scale: radius normalisation, pixels (the image's half diagonal).
+    """
+
+    lam: float
+    centre: np.ndarray
+    scale: float
+
+    def undistort(self, pts_px: np.ndarray) -> np.ndarray:
+        """(N, 2) image pixels -> (N, 2) straightened pixels."""
+        d = np.asarray(pts_px, dtype=np.float64).reshape(-1, 2) - self.centre
+        r2 = (d * d).sum(axis=1, keepdims=True) / self.scale**2
+        return self.centre + d / (1.0 + self.lam * r2)
+
+    def distort(self, pts_px: np.ndarray) -> np.ndarray:
+        """(N, 2) straightened pixels -> (N, 2) image pixels (fixed-point inverse)."""
+        du = np.asarray(pts_px, dtype=np.float64).reshape(-1, 2) - self.centre
+        d = du.copy()
+        for _ in range(30):
+            r2 = (d * d).sum(axis=1, keepdims=True) / self.scale**2
+            d = du * (1.0 + self.lam * r2)
+        return self.centre + d

@@ -13,7 +13,7 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect_edges import bilinear
-from artcal_ros.core.detect_lens import LensModel
+from artcal_ros.core.detect_lens import DivisionLens, LensModel
 
 
 def homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
@@ -76,6 +76,25 @@ def border_is_dark(lin: np.ndarray, quads: np.ndarray, bits: int) -> np.ndarray:
     return np.asarray(vin < vout)
 
 
+def inner_border_cells(board: Board, ids: np.ndarray, rows: int = 2) -> np.ndarray:
+    """(M, 4, rows, bits) bool: per side, the code cells behind the border that share its colour.
+
+    Row 0 touches the border, row 1 is the next one inward. Sides run TL->TR,
+    TR->BR, BR->BL, BL->TL; cells are listed in that direction.
+    """
+    b = board.bits
+    out = np.zeros((len(ids), 4, rows, b), dtype=bool)
+    for k, marker_id in enumerate(ids):
+        mod = board.marker_modules(int(marker_id))
+        same = mod == mod[0, 0]
+        for r in range(rows):
+            out[k, 0, r] = same[1 + r, 1:b + 1]
+            out[k, 1, r] = same[1:b + 1, b - r]
+            out[k, 2, r] = same[b - r, 1:b + 1][::-1]
+            out[k, 3, r] = same[1:b + 1, 1 + r][::-1]
+    return out
+
+
 def code_errors(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, ids: np.ndarray,
                 board: Board) -> np.ndarray:
     """(M,) int: modules (border and code) whose brightness disagrees with the id's pattern.
@@ -97,15 +116,14 @@ def code_errors(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, ids: np.
     pts = apply_h(H, np.broadcast_to(grid, (M, *grid.shape)))
     vals = bilinear(lin, pts[..., 0], pts[..., 1]).reshape(M, n * n, 9).mean(axis=2)
     expect_white = np.stack([board.marker_modules(int(i)).ravel() for i in ids])
-    errors = np.full(M, n * n, dtype=np.intp)
-    for m in range(M):
-        white, black = vals[m, expect_white[m]], vals[m, ~expect_white[m]]
-        if len(white) == 0 or len(black) == 0:
-            continue
-        thr = 0.5 * (white.mean() + black.mean())
-        if not white.mean() > black.mean():
-            continue
-        errors[m] = int((white <= thr).sum() + (black > thr).sum())
+    nw = expect_white.sum(axis=1)
+    nb = n * n - nw
+    mean_w = (vals * expect_white).sum(axis=1) / np.maximum(nw, 1)
+    mean_b = (vals * ~expect_white).sum(axis=1) / np.maximum(nb, 1)
+    thr = 0.5 * (mean_w + mean_b)
+    wrong = np.where(expect_white, vals <= thr[:, None], vals > thr[:, None]).sum(axis=1)
+    separated = (nw > 0) & (nb > 0) & (mean_w > mean_b)
+    errors = np.where(separated, wrong, n * n).astype(np.intp)
     return errors
 
 
@@ -147,7 +165,7 @@ def _quad_area(q: np.ndarray) -> np.ndarray:
 
 
 def diagonal_centres(corners: np.ndarray, corner_sigma: np.ndarray,
-                     lens: LensModel | None) -> tuple[np.ndarray, np.ndarray]:
+                     lens: LensModel | DivisionLens | None) -> tuple[np.ndarray, np.ndarray]:
     """Marker centres as the intersection of the quad diagonals, and their 1-sigma errors.
 
     Under a pinhole projection the image of a square's centre is exactly the
