@@ -335,3 +335,15 @@ def test_committed_sample_bag_matches_its_truth() -> None:
         k = f.ids - truth.board.first_id
         assert np.max(np.abs(f.corners_px - corners[k])) < 1e-6
         assert inside.sum() >= 8
+
+
+def test_artcal_cli_exit_status(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """Through the real ``artcal`` entry point: success 0, a bad preset 2 with one line."""
+    for verb in ("board", "synth", "detect", "calibrate"):
+        pytest.importorskip(f"artcal_ros.commands.{verb}")
+    from artcal_ros.cli import main
+    assert main(["synth", "--camera", "nope", "--frames", "1", "--out", str(tmp_path)]) == 2
+    err = capsys.readouterr().err.strip().splitlines()
+    assert len(err) == 1 and "preset" in err[0] and "webcam" in err[0]
+    assert main(["synth", "--frames", "1", "--out", str(tmp_path / "ok")]) == 0
+    assert (tmp_path / "ok" / "frame_0000.png").is_file()
