@@ -92,7 +92,9 @@ def random_poses(board: Board, cam: Camera, n: int, rng: np.random.Generator, *,
     Args:
         partial_fraction: share of views so close that the board overfills the image.
         min_inside: markers that must be fully inside the image in every view.
-        min_distance, max_distance: camera-to-aim-point distance range, metres.
+        min_distance, max_distance: camera-to-aim-point distance range, metres (partial
+            views of a board small enough to fit the image from closer than
+            ``min_distance / 0.6`` come from 0.4 - 0.85 times that fitting distance).
         max_tilt_deg: largest angle between the optical axis and the board normal.
         max_roll_deg: largest roll about the optical axis.
 
@@ -118,10 +120,12 @@ def random_poses(board: Board, cam: Camera, n: int, rng: np.random.Generator, *,
             if partial:
                 target = np.array([rng.uniform(0.1, 0.9) * w_m, rng.uniform(0.1, 0.9) * h_m, 0])
                 fit = _fit_distance(board, cam, centre, R_bc, min_distance, 4 * max_distance)
-                top = min(max_distance, 0.6 * (fit if fit is not None else max_distance))
-                if top <= min_distance:
-                    continue
-                dist = math.exp(rng.uniform(math.log(min_distance), math.log(top)))
+                fit = fit if fit is not None else max_distance
+                lo, top = min_distance, min(max_distance, 0.6 * fit)
+                if top <= lo:
+                    # a small board, whole in view from closer than min_distance: go nearer
+                    lo, top = 0.4 * fit, 0.85 * fit
+                dist = math.exp(rng.uniform(math.log(lo), math.log(top)))
             else:
                 target = centre + np.array([rng.uniform(-0.08, 0.08) * w_m,
                                             rng.uniform(-0.08, 0.08) * h_m, 0.0])
