@@ -33,6 +33,7 @@ from dataclasses import dataclass
 import numpy as np
 
 from artcal_ros.core.board import Board
+from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ParameterError
 from artcal_ros.core.synth_backdrop import Backdrop
 from artcal_ros.core.synth_camera import PRESETS, Camera, project_points, rays_from_pixels
@@ -89,6 +90,14 @@ class RenderedView:
     centers_px: np.ndarray
     inside: np.ndarray
     side_px: np.ndarray
+
+    def true_detections(self, *, min_side_px: float = 0.0) -> Detections:
+        """The markers wholly inside the image as perfect :class:`Detections` (true points),
+        optionally only those whose image side is at least ``min_side_px``."""
+        keep = self.inside & (self.side_px >= min_side_px)
+        h, w = self.image.shape[:2]
+        return Detections(self.ids[keep], self.corners_px[keep], self.centers_px[keep], (w, h),
+                          source="synth")
 
     def truth_record(self, *, file: str | None = None,
                      stamp_ns: int | None = None) -> dict[str, object]:

@@ -27,6 +27,7 @@ from typing import Any
 import numpy as np
 
 from artcal_ros.core.board import Board
+from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError
 from artcal_ros.core.synth_camera import Camera
 
@@ -56,6 +57,14 @@ class TruthFrame:
     centers_px: np.ndarray
     inside: np.ndarray
     side_px: np.ndarray
+
+    def true_detections(self, image_size: tuple[int, int], *,
+                        min_side_px: float = 0.0) -> Detections:
+        """The markers wholly inside the image as perfect :class:`Detections` (true points),
+        optionally only those whose image side is at least ``min_side_px``."""
+        keep = self.inside & ~(self.side_px < min_side_px)
+        return Detections(self.ids[keep], self.corners_px[keep], self.centers_px[keep],
+                          image_size, source=self.file or f"stamp {self.stamp_ns}")
 
 
 @dataclass(frozen=True)

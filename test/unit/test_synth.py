@@ -282,6 +282,9 @@ def test_cli_writes_pngs_and_truth(tmp_path: Path, params_file: Path) -> None:
         assert np.max(np.abs(f.centers_px - centers[k])) < 1e-6
         assert np.array_equal(f.inside, inside[k])
     assert truth.by_file("frame_0001.png") is truth.frames[1]
+    perfect = truth.frames[0].true_detections(truth.camera.size)
+    assert len(perfect) == int(truth.frames[0].inside.sum()) >= 8
+    assert perfect.image_size == (640, 480)
     # the same seed renders the same images
     again = tmp_path / "again"
     _run_cli(["--frames", "3", "--out", str(again), "--seed", "4"])
