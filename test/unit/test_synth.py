@@ -91,7 +91,8 @@ def _edge_rows(cam: Camera, board: Board, rvec: np.ndarray, tvec: np.ndarray,
 
 
 EDGE_CASES = [("webcam", np.array([0.25, -0.3, 0.06]), np.array([-0.1, -0.06, 0.40])),
-              ("fisheye", np.array([-0.2, 0.35, -0.1]), np.array([-0.08, -0.05, 0.30]))]
+              ("fisheye", np.array([-0.2, 0.35, -0.1]), np.array([-0.08, -0.05, 0.30])),
+              ("rational", np.array([0.3, 0.25, -0.2]), np.array([-0.12, -0.02, 0.42]))]
 
 
 @pytest.mark.parametrize(("name", "rvec", "tvec"), EDGE_CASES)
@@ -103,7 +104,7 @@ def test_rendered_edge_lies_where_the_truth_says(name: str, rvec: np.ndarray,
     the edge sits at (first pixel's left side) + (sum of the values): this is the 50 %
     crossing of the pixel-integrated edge, exact for any position of the edge."""
     board = Board(cols=3, rows=2)
-    cam = Camera.preset(name)
+    cam = _camera(name)
     img = render_linear(board, cam, rvec, tvec, photometry=Photometry.exact())
     py, px = _edge_rows(cam, board, rvec, tvec, board.pitch)   # left side of marker 1
     errors = []
