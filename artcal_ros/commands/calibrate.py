@@ -50,9 +50,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also write summary.json and PNG plots into DIR")
     parser.add_argument("--max-views", type=int, default=40, metavar="N",
                         help="solve from at most N diverse views (default 40)")
-    parser.add_argument("--max-frames", type=int, default=600, metavar="N",
+    parser.add_argument("--max-frames", type=int, default=150, metavar="N",
                         help="from a bag, detect markers in at most N frames spread evenly "
-                             "over the recording (default 600; 0 = every frame)")
+                             "over the recording (default 150; 0 = every frame)")
     parser.add_argument("--k3", action="store_true",
                         help="also estimate k3 (plumb_bob; for strong wide-angle distortion)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")

@@ -291,7 +291,7 @@ def _layout_check(views: list[ViewPoints], board: Board, dropped: list[DroppedVi
 
 def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tuple[int, int],
               model: str = "plumb_bob", points: str = "centers", max_views: int = 40,
-              k3: bool = False, cross_validation_folds: int = 5,
+              k3: bool = False, cross_validation_folds: int = 5, weighted: bool = True,
               progress: Callable[[str], None] | None = None) -> CalibrationResult:
     """Calibrate a camera from the markers found in several images.
 
@@ -304,6 +304,8 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         max_views: at most this many views are solved (diverse ones are chosen).
         k3: also estimate k3 for ``plumb_bob`` (for strong distortion).
         cross_validation_folds: folds of the hold-out error (0 to skip it).
+        weighted: weight each point by the detector's 1/sigma^2 where it gives sigmas
+            (``corner_sigma_px``/``center_sigma_px``); views without them weigh alike.
         progress: called with a short message at each stage.
 
     Returns:
@@ -347,14 +349,16 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
 
     say(f"solving {model} from {len(usable)} views")
     views = usable
-    sol, _ = solve(views, size, model, k3=k3)
+    weighted = weighted and any(
+        v.sigma_px is not None and np.isfinite(v.sigma_px).any() for v in views)
+    sol, _ = solve(views, size, model, k3=k3, weighted=weighted)
     if points == "centers":
         # Re-measure the centres through the fitted lens, then solve again (twice: the
         # second pass moves them by far less than their noise).
         for _pass in range(2):
             views = [lens_corrected_centres(v, sol.camera_matrix, sol.dist_coeffs, model)
                      for v in views]
-            sol, _ = solve(views, size, model, k3=k3, initial=sol)
+            sol, _ = solve(views, size, model, k3=k3, initial=sol, weighted=weighted)
     for _round in range(8):
         res = residuals(views, sol)
         kept, removed = _reject(views, res, board, size, dropped, outliers)
@@ -364,19 +368,20 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         check_views(kept, size, [(d.view_index, d.reason) for d in dropped])
         views = kept
         say(f"re-solving without outliers ({len(views)} views, {points_dropped} points dropped)")
-        sol, _ = solve(views, size, model, k3=k3, initial=sol)
+        sol, _ = solve(views, size, model, k3=k3, initial=sol, weighted=weighted)
     res = residuals(views, sol)
     rms, std, worst = _stats(res)
     _sanity(sol, views, size, rms)
 
     say("estimating uncertainty")
-    cov, _sigma = intrinsic_covariance(views, sol, res)
+    cov, _sigma = intrinsic_covariance(views, sol, res, weighted=weighted)
     std_dev = np.sqrt(np.maximum(np.diag(cov), 0.0))
     effects, unc_rms, unc_max = parameter_effect_px(sol, size, cov)
     holdout = float("nan")
     if cross_validation_folds > 1:
         say(f"{cross_validation_folds}-fold cross-validation")
-        holdout = cross_validate(views, sol, size, k3=k3, folds=cross_validation_folds)
+        holdout = cross_validate(views, sol, size, k3=k3, folds=cross_validation_folds,
+                                 weighted=weighted)
     geo = view_geometry(views, size, sol.camera_matrix)
     coverage = float(np.mean(geo.cells.any(axis=0)))
     warnings = _warnings(sol, size, views, std_dev, effects, rms, holdout, coverage)

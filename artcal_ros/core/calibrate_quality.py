@@ -26,6 +26,7 @@ from artcal_ros.core.calibrate_solve import (
     Solution,
     ViewPoints,
     estimate_pose,
+    point_weights,
     project,
     project_jacobian,
     solve,
@@ -112,14 +113,19 @@ def projection_difference(true_cam: Any, est_cam: Any, *,
 
 
 def intrinsic_covariance(views: Sequence[ViewPoints], sol: Solution,
-                         res: Sequence[np.ndarray]) -> tuple[np.ndarray, float]:
+                         res: Sequence[np.ndarray], *,
+                         weighted: bool = False) -> tuple[np.ndarray, float]:
     """Covariance of the free intrinsics of a solve, in the order of ``sol.free``.
+
+    The residual variance is measured (not assumed), so the figures stay honest when the
+    detector's sigmas are off by a common factor.
 
     Args:
         views: the views of the solve; res: their residuals, (M, 2) pixels each.
+        weighted: the solve weighted points by :func:`point_weights`.
 
     Returns:
-        (covariance (p, p), residual sigma per coordinate, pixels).
+        (covariance (p, p), residual sigma per coordinate of unit weight).
     """
     all_names = INTRINSIC_NAMES + DIST_NAMES[sol.model]
     cols = [all_names.index(n) for n in sol.free]
@@ -127,17 +133,20 @@ def intrinsic_covariance(views: Sequence[ViewPoints], sol: Solution,
     U = np.zeros((p, p))
     S = np.zeros((p, p))
     n_obs = 0
-    for v, r, t in zip(views, sol.rvecs, sol.tvecs, strict=True):
+    sse = 0.0
+    for v, r, t, e in zip(views, sol.rvecs, sol.tvecs, res, strict=True):
+        sw = np.repeat(np.sqrt(point_weights(v) if weighted else np.ones(len(v))), 2)
         A, B = project_jacobian(v.object_points, r, t, sol.camera_matrix, sol.dist_coeffs,
                                 sol.model)
-        A = A[:, cols]
+        A = A[:, cols] * sw[:, None]
+        B = B * sw[:, None]
+        sse += float(np.sum((np.asarray(e).ravel() * sw) ** 2))
         U += A.T @ A
         W = A.T @ B
         V = B.T @ B
         S += W @ np.linalg.pinv(V) @ W.T
         n_obs += A.shape[0]
     dof = max(n_obs - p - 6 * len(views), 1)
-    sse = float(sum(np.sum(r ** 2) for r in res))
     sigma = float(np.sqrt(sse / dof))
     info = U - S
     try:
@@ -176,7 +185,7 @@ def parameter_effect_px(sol: Solution, image_size: tuple[int, int],
 
 
 def cross_validate(views: Sequence[ViewPoints], sol: Solution, image_size: tuple[int, int],
-                   *, k3: bool, folds: int = 5, seed: int = 0) -> float:
+                   *, k3: bool, folds: int = 5, seed: int = 0, weighted: bool = False) -> float:
     """k-fold hold-out reprojection RMS over views, pixels (NaN with fewer than 4 views).
 
     Each fold is solved from the other views (starting from ``sol``); every held-out view's
@@ -192,7 +201,8 @@ def cross_validate(views: Sequence[ViewPoints], sol: Solution, image_size: tuple
         test = set(order[f::k].tolist())
         train = [v for i, v in enumerate(views) if i not in test]
         try:
-            fold, _ = solve(train, image_size, sol.model, k3=k3, initial=sol)
+            fold, _ = solve(train, image_size, sol.model, k3=k3, initial=sol,
+                            weighted=weighted)
         except Exception:  # a fold that cannot be solved says the set is fragile
             return float("inf")
         for i in sorted(test):

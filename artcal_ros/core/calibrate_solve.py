@@ -47,6 +47,8 @@ class ViewPoints:
         sharpness: focus measure of the image (NaN if unknown).
         marker_corners_px: (M, 4, 2) float64 pixels, for marker centres: the corners they
             were measured from (so the centres can be corrected for distortion); else None.
+        sigma_px: (M,) float64, the detector's 1-sigma error of each point, pixels (NaN
+            where unknown), or None.
     """
 
     index: int
@@ -56,6 +58,7 @@ class ViewPoints:
     marker_ids: np.ndarray
     sharpness: float = float("nan")
     marker_corners_px: np.ndarray | None = None
+    sigma_px: np.ndarray | None = None
 
     def __len__(self) -> int:
         return len(self.image_points)
@@ -63,14 +66,16 @@ class ViewPoints:
     def subset(self, mask: np.ndarray) -> ViewPoints:
         """Only the points ``mask`` selects."""
         corners = None if self.marker_corners_px is None else self.marker_corners_px[mask]
+        sigma = None if self.sigma_px is None else self.sigma_px[mask]
         return ViewPoints(self.index, self.source, self.object_points[mask],
                           self.image_points[mask], self.marker_ids[mask], self.sharpness,
-                          corners)
+                          corners, sigma)
 
     def with_image_points(self, image_points: np.ndarray) -> ViewPoints:
         """The same view with other image points (M, 2), pixels."""
         return ViewPoints(self.index, self.source, self.object_points, image_points,
-                          self.marker_ids, self.sharpness, self.marker_corners_px)
+                          self.marker_ids, self.sharpness, self.marker_corners_px,
+                          self.sigma_px)
 
 
 @dataclass(frozen=True)
@@ -186,7 +191,8 @@ def _initial_fisheye(views: list[ViewPoints],
 
 
 def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *, k3: bool = False,
-          initial: Solution | None = None) -> tuple[Solution, np.ndarray | None]:
+          initial: Solution | None = None,
+          weighted: bool = False) -> tuple[Solution, np.ndarray | None]:
     """Fit intrinsics and poses to every point of ``views`` (no outlier handling).
 
     Without ``initial`` the fit grows outwards from the image centre: first the points
@@ -200,6 +206,7 @@ def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *, k
         model: one of :data:`MODELS`.
         k3: also estimate k3 (``plumb_bob`` only).
         initial: start from these intrinsics.
+        weighted: weight each point by 1 / sigma^2 (``ViewPoints.sigma_px``).
 
     Returns:
         (solution, OpenCV's standard deviations of the intrinsics or None).
@@ -226,12 +233,12 @@ def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *, k
                                          initial=initial)
             except CalibrationError:
                 initial = None
-    return _solve_once(views, image_size, model, k3=k3, initial=initial)
+    return _solve_once(views, image_size, model, k3=k3, initial=initial, weighted=weighted)
 
 
 def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str, *,
-                k3: bool = False,
-                initial: Solution | None = None) -> tuple[Solution, np.ndarray | None]:
+                k3: bool = False, initial: Solution | None = None,
+                weighted: bool = False) -> tuple[Solution, np.ndarray | None]:
     """One fit of intrinsics and poses to every point of ``views``.
 
     Args:
@@ -260,7 +267,8 @@ def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str
                 K0, D0 = initial.camera_matrix.copy(), initial.dist_coeffs.copy()
             else:
                 K0, D0 = _initial_fisheye(views, image_size)
-            K, D, rv, tv = _bundle_adjust(views, K0, D0, model)
+            K, D, rv, tv = _bundle_adjust(views, K0, D0, model, free=free,
+                                          weighted=weighted)
             std = None
             dist: np.ndarray = np.asarray(D, dtype=np.float64).ravel()
         else:
@@ -293,6 +301,13 @@ def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str
             f"the {model} solver failed ({e.err.strip() if hasattr(e, 'err') else e}); "
             "add views that tilt the board in different directions") from None
     K = np.asarray(K, dtype=np.float64)
+    if weighted and model != "equidistant" and np.all(np.isfinite(K)):
+        # OpenCV weighs every point alike; refine with each point's measured uncertainty.
+        K, dist, rv, tv = _bundle_adjust(
+            views, K, dist, model, free=free, weighted=True,
+            poses=(np.asarray(rv, np.float64).reshape(-1, 3),
+                   np.asarray(tv, np.float64).reshape(-1, 3)))
+        std = None
     if not (np.all(np.isfinite(K)) and np.all(np.isfinite(dist)) and K[0, 0] > 0 and K[1, 1] > 0):
         raise CalibrationError(
             f"the {model} solver diverged (non-finite or negative focal length); add views "
@@ -302,35 +317,66 @@ def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str
     return sol, std
 
 
-def _bundle_adjust(views: list[ViewPoints], K0: np.ndarray, D0: np.ndarray, model: str,
-                   *, max_iterations: int = 100) -> tuple[np.ndarray, np.ndarray, np.ndarray,
-                                                           np.ndarray]:
-    """Levenberg-Marquardt over the intrinsics and every view's pose (used for equidistant).
+def point_weights(view: ViewPoints) -> np.ndarray:
+    """(M,) least-squares weight of each point: 1 / sigma^2, sigma floored at 0.01 px.
 
-    OpenCV's fisheye calibration re-initialises the poses at every iteration and fails
-    outright when the distortion wanders during the solve; this joint solve only ever
-    accepts steps that lower the error. Poses are eliminated by a Schur complement, so a
+    Points of unknown sigma get the view's median weight (1 where no sigma is known).
+    """
+    if view.sigma_px is None:
+        return np.ones(len(view))
+    sigma = np.maximum(np.asarray(view.sigma_px, dtype=np.float64), 0.01)
+    known = np.isfinite(sigma)
+    if not known.any():
+        return np.ones(len(view))
+    w = np.where(known, 1.0 / np.where(known, sigma, 1.0) ** 2, np.nan)
+    return np.where(known, w, float(np.median(w[known])))
+
+
+def _bundle_adjust(views: list[ViewPoints], K0: np.ndarray, D0: np.ndarray, model: str,
+                   *, free: tuple[str, ...], weighted: bool = False,
+                   poses: tuple[np.ndarray, np.ndarray] | None = None,
+                   max_iterations: int = 100) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                       np.ndarray]:
+    """Levenberg-Marquardt over the free intrinsics and every view's pose.
+
+    Used for the equidistant model (OpenCV's fisheye calibration re-initialises the
+    poses at every iteration and fails outright when the distortion wanders) and to
+    weight points by their measured uncertainty (OpenCV's solvers cannot). Only steps
+    that lower the error are accepted. Poses are eliminated by a Schur complement, so a
     step costs one small dense solve however many views there are.
 
+    Args:
+        free: names of the intrinsics to estimate (others stay at K0, D0).
+        weighted: weight each point by :func:`point_weights`.
+        poses: (rvecs (V, 3), tvecs (V, 3)) to start from; estimated if None.
+
     Returns:
-        (K (3, 3), dist (4,), rvecs (V, 3), tvecs (V, 3)).
+        (K (3, 3), dist (n,), rvecs (V, 3), tvecs (V, 3)).
     """
-    poses = []
-    for v in views:
-        r, t = estimate_pose(v, K0, D0, model)
-        poses.append(np.concatenate([r, t]))
-    x_in = np.array([K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2], *D0], dtype=np.float64)
-    x_ex = np.array(poses)
+    if poses is None:
+        est = [estimate_pose(v, K0, D0, model) for v in views]
+        x_ex = np.array([np.concatenate([r, t]) for r, t in est])
+    else:
+        x_ex = np.hstack([np.asarray(poses[0]), np.asarray(poses[1])]).astype(np.float64)
+    x_all = np.array([K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2], *D0], dtype=np.float64)
+    names = INTRINSIC_NAMES + DIST_NAMES[model][:len(D0)]
+    cols = np.array([names.index(n) for n in free if n in names])
+    x_in = x_all[cols]
+    sqrt_w = [np.repeat(np.sqrt(point_weights(v) if weighted else np.ones(len(v))), 2)
+              for v in views]
 
     def unpack(xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        K = np.array([[xi[0], 0.0, xi[2]], [0.0, xi[1], xi[3]], [0.0, 0.0, 1.0]])
-        return K, xi[4:].copy()
+        full = x_all.copy()
+        full[cols] = xi
+        K = np.array([[full[0], 0.0, full[2]], [0.0, full[1], full[3]], [0.0, 0.0, 1.0]])
+        return K, full[4:].copy()
 
     def cost(xi: np.ndarray, xe: np.ndarray) -> float:
         K, D = unpack(xi)
         total = 0.0
-        for v, pose in zip(views, xe, strict=True):
-            r = v.image_points - project(v.object_points, pose[:3], pose[3:], K, D, model)
+        for v, pose, sw in zip(views, xe, sqrt_w, strict=True):
+            r = (v.image_points - project(v.object_points, pose[:3], pose[3:], K, D,
+                                          model)).ravel() * sw
             total += float(np.sum(r ** 2))
         return total if np.isfinite(total) else np.inf
 
@@ -343,10 +389,12 @@ def _bundle_adjust(views: list[ViewPoints], K0: np.ndarray, D0: np.ndarray, mode
         U = np.zeros((p, p))
         g = np.zeros(p)
         blocks = []
-        for v, pose in zip(views, x_ex, strict=True):
+        for v, pose, sw in zip(views, x_ex, sqrt_w, strict=True):
             A, B = project_jacobian(v.object_points, pose[:3], pose[3:], K, D, model)
+            A = A[:, cols] * sw[:, None]
+            B = B * sw[:, None]
             r = (v.image_points - project(v.object_points, pose[:3], pose[3:], K, D,
-                                          model)).ravel()
+                                          model)).ravel() * sw
             U += A.T @ A
             g += A.T @ r
             blocks.append((A.T @ B, B.T @ B, B.T @ r))

@@ -45,15 +45,17 @@ def view_points(det: Detections, board: Board, points: str, index: int) -> ViewP
         ok = np.all(np.isfinite(img), axis=1)
         ids = det.ids[keep][ok]
         corners = det.corners_px[keep][ok]
+        sigma = det.center_sigma_px[keep][ok]
         has_corners = np.all(np.isfinite(corners), axis=(1, 2))
         ids, img, corners = ids[has_corners], img[ok][has_corners], corners[has_corners]
         return ViewPoints(index, det.source, board.object_centers(ids), img, ids,
-                          det.sharpness, corners)
+                          det.sharpness, corners, sigma[has_corners])
     img4 = det.corners_px[keep]
     ok = np.all(np.isfinite(img4), axis=(1, 2))
     ids = det.ids[keep][ok]
     return ViewPoints(index, det.source, board.object_corners(ids).reshape(-1, 3),
-                      img4[ok].reshape(-1, 2), np.repeat(ids, 4), det.sharpness)
+                      img4[ok].reshape(-1, 2), np.repeat(ids, 4), det.sharpness,
+                      sigma_px=det.corner_sigma_px[keep][ok].reshape(-1))
 
 
 def lens_corrected_centres(view: ViewPoints, camera_matrix: np.ndarray,
