@@ -43,6 +43,19 @@ PHOTOMETRIES = ("clean", "harsh", "mixed", "exact")
 BAG_START_NS = 1_700_000_000_000_000_000
 
 
+def camera_from_arg(text: str) -> Camera:
+    """A preset name (webcam, hd, wide, fisheye) or a camera_info YAML file's camera."""
+    if text in PRESETS or not text.lower().endswith((".yaml", ".yml")):
+        return Camera.preset(text)
+    from artcal_ros.core.camera_info import read_camera_info_yaml
+    info = read_camera_info_yaml(text)
+    try:
+        return Camera(info.distortion_model, info.camera_matrix, info.dist_coeffs,
+                      info.image_size)
+    except ParameterError as e:
+        raise ParameterError(f"--camera {text}: {e}") from None
+
+
 def frame_photometry(name: str, rng: np.random.Generator) -> Photometry:
     """The photometry of one frame: ``clean``/``harsh``/``exact`` as named; ``mixed`` draws a
     mostly clean frame (light, exposure and noise varied) and one in five harsh."""
@@ -146,7 +159,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     """Arguments of ``artcal synth``."""
     add_params_arguments(parser)
     parser.add_argument("--camera", default="webcam", metavar="PRESET",
-                        help=f"camera preset: {', '.join(PRESETS)} (default webcam)")
+                        help=f"camera preset ({', '.join(PRESETS)}; default webcam) or a "
+                             "camera_info YAML file (plumb_bob, rational_polynomial or "
+                             "equidistant)")
     parser.add_argument("--frames", type=int, default=20, metavar="N",
                         help="number of frames (default 20)")
     parser.add_argument("--out", required=True, metavar="DIR",
@@ -176,7 +191,7 @@ def run(args: argparse.Namespace) -> int:
     """Render, write, and print a one-line summary."""
     _keep_freed_memory()
     board = Board.from_params(params_from_args(args))
-    cam = Camera.preset(args.camera)
+    cam = camera_from_arg(args.camera)
     bar: Progress[None] = Progress(total=args.frames, label="synth")
     start = time.monotonic()
     truth = write_dataset(board, cam, args.out, frames=args.frames, seed=args.seed,
@@ -187,7 +202,7 @@ def run(args: argparse.Namespace) -> int:
     bar.close()
     seconds = time.monotonic() - start
     kind = "bag" if args.bag else "PNGs"
-    print(f"wrote {args.frames} frames ({cam.width}x{cam.height} {args.camera}, "
+    print(f"wrote {args.frames} frames ({cam.width}x{cam.height} {cam.model}, "
           f"{args.encoding}) as {kind} in {args.out} and truth in {truth} "
           f"({seconds:.1f} s, {seconds / args.frames:.2f} s/frame)")
     return 0

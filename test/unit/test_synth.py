@@ -293,6 +293,21 @@ def test_cli_writes_pngs_and_truth(tmp_path: Path, params_file: Path) -> None:
         assert np.array_equal(cv2.imread(str(again / name)), cv2.imread(str(out / name)))
 
 
+def test_cli_camera_from_a_camera_info_file(tmp_path: Path) -> None:
+    yaml_file = tmp_path / "cam.yaml"
+    yaml_file.write_text(
+        "image_width: 320\nimage_height: 240\ncamera_name: test\n"
+        "camera_matrix: {rows: 3, cols: 3, data: [300, 0, 161, 0, 301, 119, 0, 0, 1]}\n"
+        "distortion_model: plumb_bob\n"
+        "distortion_coefficients: {rows: 1, cols: 5, data: [-0.2, 0.05, 0, 0, 0]}\n")
+    out = tmp_path / "frames"
+    assert _run_cli(["--camera", str(yaml_file), "--frames", "1", "--out", str(out)]) == 0
+    truth = load_truth(out / "truth.json")
+    assert truth.camera.size == (320, 240) and truth.camera.K[0, 0] == 300.0
+    assert np.allclose(truth.camera.dist, [-0.2, 0.05, 0, 0, 0])
+    assert cv2.imread(str(out / "frame_0000.png")).shape[:2] == (240, 320)
+
+
 def test_cli_refuses_bad_input(tmp_path: Path) -> None:
     with pytest.raises(ParameterError, match="preset"):
         _run_cli(["--camera", "nope", "--frames", "1", "--out", str(tmp_path / "x")])
