@@ -28,6 +28,7 @@ import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
+from artcal_ros.core.detect_decode import PatternTable, decode_quads
 from artcal_ros.core.detect_edges import refine_quads
 from artcal_ros.core.detect_lens import DivisionLens, LensModel
 from artcal_ros.core.detect_verify import (
@@ -66,6 +67,9 @@ class DetectorConfig:
         neighbour_tolerance: how far (in marker sides) a neighbour may sit from
             where this marker's own homography puts it.
         min_side_px: quads with a shorter side are ignored.
+        code_rows: code rows behind the border modelled by the edge fit (1 or 2).
+        decode_rejected: decode the quads OpenCV could not read against the
+            board's own patterns (recovers markers under blur and clipping).
         adaptive_window_max: largest adaptive-threshold window of the quad finder.
     """
 
@@ -77,6 +81,7 @@ class DetectorConfig:
     curve_min_px: float = 40.0
     estimate_lens: bool = True
     code_rows: int = 1
+    decode_rejected: bool = True
     max_bit_errors: int = 2
     max_bit_errors_isolated: int | None = 0
     neighbour_tolerance: float = 0.25
@@ -156,6 +161,7 @@ class Detector:
         self.board = board
         self.config = config or DetectorConfig()
         self._aruco = _aruco_detector(board, self.config)
+        self._patterns = PatternTable(board, any_polarity=board.polarity == "any")
         # quiet zone around a marker's border, in modules (mixed boards: half the gap)
         gap = board.marker_separation / board.module_length
         self._quiet_modules = 0.5 * gap if board.polarity == "mixed" else gap
@@ -180,15 +186,14 @@ class Detector:
         h, w = gray.shape
         gray8 = to_gray8(gray)
         sharpness = float(cv2.Laplacian(gray8, cv2.CV_32F).var())
-        quads, ids = self._candidates(gray8)
-        if len(ids) == 0:
-            return replace(Detections.empty((w, h), source), sharpness=sharpness)
-
         gamma = self.config.gamma
         if gray.dtype == np.uint16 and self.config.gamma_16bit is not None:
             gamma = self.config.gamma_16bit
         lin = linearise(gray, gamma)
         bits = self.board.bits
+        quads, ids = self._candidates(gray8, lin)
+        if len(ids) == 0:
+            return replace(Detections.empty((w, h), source), sharpness=sharpness)
 
         dark = border_is_dark(lin, quads, bits)
         if self.board.polarity != "any":
@@ -231,15 +236,41 @@ class Detector:
         return Detections(ids[order], corners[order], centres[order], (w, h),
                           sigma[order], centre_sigma[order], sharpness, source)
 
-    def _candidates(self, gray8: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Quads (N, 4, 2) in board corner order and ids (N,) that belong to the board."""
-        corners, ids, _ = self._aruco.detectMarkers(gray8)
-        if ids is None or len(ids) == 0:
-            return np.zeros((0, 4, 2)), np.zeros(0, dtype=np.int64)
-        quads: np.ndarray = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)
-        ids = np.asarray(ids, dtype=np.int64).reshape(-1)
+    def _candidates(self, gray8: np.ndarray, lin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """Quads (N, 4, 2) in board corner order and ids (N,) that belong to the board.
+
+        OpenCV's detections first; then the quads it found but could not read are
+        decoded again against the board's own patterns (:mod:`detect_decode`).
+        """
+        corners, ids_cv, rejected = self._aruco.detectMarkers(gray8)
+        if ids_cv is None or len(ids_cv) == 0:
+            quads: np.ndarray = np.zeros((0, 4, 2))
+            ids: np.ndarray = np.zeros(0, dtype=np.int64)
+        else:
+            quads = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)
+            ids = np.asarray(ids_cv, dtype=np.int64).reshape(-1)  # type: ignore[assignment]
         on_board = (ids >= self.board.first_id) & (ids <= int(self.board.ids[-1]))
         quads, ids = quads[on_board], ids[on_board]
+        if self.config.decode_rejected and rejected is not None and len(rejected):
+            rq = np.asarray(rejected, dtype=np.float64).reshape(-1, 4, 2)
+            sides = np.linalg.norm(rq - np.roll(rq, -1, axis=1), axis=2).min(axis=1)
+            rq = rq[sides >= self.config.min_side_px]
+            dq, dids, _, err = decode_quads(lin, rq, self._patterns)
+            # near misses: re-read on quads refined from their edges
+            near = (err > 2) & (err <= 10)
+            if near.any():
+                nq = rq[near]
+                dark = border_is_dark(lin, nq, self.board.bits)
+                fit = refine_quads(lin, nq, dark, self.board.bits, allow_curvature=False,
+                                   passes=1)
+                good = fit.ok & (np.abs(fit.corners_px - nq).max(axis=(1, 2)) < 3.0)
+                rq2, rids2, _, _ = decode_quads(lin, fit.corners_px[good], self._patterns,
+                                                grow_px=0.0)
+                dq = np.concatenate([dq, rq2])
+                dids = np.concatenate([dids, rids2])
+            new = ~np.isin(dids, ids)
+            quads = np.concatenate([quads, dq[new]])
+            ids = np.concatenate([ids, dids[new]])
         uniq, counts = np.unique(ids, return_counts=True)
         single = np.isin(ids, uniq[counts == 1])
         quads, ids = quads[single], ids[single]

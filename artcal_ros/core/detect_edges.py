@@ -662,7 +662,8 @@ def _offset_var(model: _SideModel, sides: np.ndarray, t: np.ndarray) -> np.ndarr
     return np.einsum("sp,spq,sq->s", x, model.cov[sides], x)
 
 
-def _straight_in_undistorted(lens: LensModel | DivisionLens, a: np.ndarray, u: np.ndarray, n: np.ndarray,
+def _straight_in_undistorted(lens: LensModel | DivisionLens, a: np.ndarray, u: np.ndarray,
+                             n: np.ndarray,
                              t: np.ndarray, s: np.ndarray, valid: np.ndarray,
                              corners: np.ndarray, M: int
                              ) -> tuple[np.ndarray, np.ndarray, _SideModel]:

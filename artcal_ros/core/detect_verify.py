@@ -101,7 +101,9 @@ def code_errors(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, ids: np.
 
     Each module is read as the mean of 3 x 3 samples in its central half and
     classified against the midpoint of the expected-white and expected-black
-    means. A quad whose expected classes are not separated counts as all wrong.
+    means; cells within a fifth of the contrast of that midpoint count as
+    neither. A quad whose expected classes are not separated, or with more than
+    40 % such cells, counts as all wrong.
     """
     M = len(ids)
     if M == 0:
@@ -121,8 +123,13 @@ def code_errors(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, ids: np.
     mean_w = (vals * expect_white).sum(axis=1) / np.maximum(nw, 1)
     mean_b = (vals * ~expect_white).sum(axis=1) / np.maximum(nb, 1)
     thr = 0.5 * (mean_w + mean_b)
-    wrong = np.where(expect_white, vals <= thr[:, None], vals > thr[:, None]).sum(axis=1)
-    separated = (nw > 0) & (nb > 0) & (mean_w > mean_b)
+    # a cell within a fifth of the contrast of the threshold (a lone cell under
+    # blur) is not counted as wrong, but too many such cells is a failure
+    band = 0.2 * np.abs(mean_w - mean_b)
+    wrong = np.where(expect_white, vals < (thr - band)[:, None],
+                     vals > (thr + band)[:, None]).sum(axis=1)
+    unsure = (np.abs(vals - thr[:, None]) <= band[:, None]).mean(axis=1)
+    separated = (nw > 0) & (nb > 0) & (mean_w > mean_b) & (unsure <= 0.4)
     errors = np.where(separated, wrong, n * n).astype(np.intp)
     return errors
 

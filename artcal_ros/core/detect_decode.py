@@ -1,0 +1,129 @@
+"""A second decoder for the quads OpenCV's ArUco detector found but could not read.
+
+Under defocus, motion blur or clipping OpenCV's per-cell Otsu threshold often
+fails although the quad itself was found. Here the quad is corrected by the
+~0.7 px its contour runs inside (dark border) or outside (light border) the
+true border, every module is read as the
+mean of 3 x 3 samples in linear intensity, thresholded halfway between the
+border's level and the quiet zone's, and the 8 x 8 pattern (border included) is
+compared with the board's own markers in all four rotations. Only the board's
+ids can match, and everything decoded here still goes through the same edge
+refinement and verification as OpenCV's detections.
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from artcal_ros.core.board import Board
+from artcal_ros.core.detect_edges import bilinear
+from artcal_ros.core.detect_verify import apply_h, border_is_dark, homographies
+
+
+class PatternTable:
+    """The board's printed patterns in all four corner orders, for fast matching.
+
+    Args:
+        board: the calibration board.
+        any_polarity: also match the inverted pattern of every marker
+            (``board.polarity == "any"``).
+    """
+
+    def __init__(self, board: Board, any_polarity: bool) -> None:
+        n = board.bits + 2
+        pats = np.stack([board.marker_modules(int(i)) for i in board.ids])  # (N, n, n)
+        ids = board.ids
+        if any_polarity:
+            pats = np.concatenate([pats, ~pats])
+            ids = np.concatenate([ids, ids])
+        self.ids = ids
+        self.flat = pats.reshape(len(pats), n * n).astype(np.float32)
+        self.n = n
+
+
+def _module_grid(n: int) -> np.ndarray:
+    """(n * n * 9, 2) sample points in module units: 3 x 3 per module, row-major modules."""
+    sub = (np.arange(3) - 1.0) * 0.22
+    cy, cx = np.meshgrid(np.arange(n) + 0.5, np.arange(n) + 0.5, indexing="ij")
+    px = (cx[..., None, None] + sub[None, None, None, :]).repeat(3, axis=2)
+    py = (cy[..., None, None] + sub[None, None, :, None]).repeat(3, axis=3)
+    return np.stack([px.ravel(), py.ravel()], axis=1)
+
+
+def decode_quads(lin: np.ndarray, quads: np.ndarray, table: PatternTable, *,
+                 max_errors: int = 2, grow_px: float = 0.7, ambiguity: float = 0.2
+                 ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """Decode candidate quads against the board's patterns.
+
+    Args:
+        lin: (H, W) linear intensity image.
+        quads: (R, 4, 2) candidate corners, pixels, any order.
+        table: the board's patterns.
+        max_errors: most modules (of (bits + 2)^2) that may clearly disagree.
+        ambiguity: cells closer than this share of the contrast to the threshold
+            count neither as agreeing nor as disagreeing (at most 40 % may).
+        grow_px: growth applied to each side first (outward for a dark border,
+            inward for a light one), pixels.
+
+    Returns:
+        quads (D, 4, 2) re-ordered to the board's TL, TR, BR, BL (grown), ids (D,),
+        the index (D,) of each in the input, and every input's module errors (R,).
+    """
+    if len(quads) == 0:
+        return (np.zeros((0, 4, 2)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.intp),
+                np.zeros(0))
+    q = np.asarray(quads, dtype=np.float64).reshape(-1, 4, 2)
+    # clockwise in the image (y down), like a marker seen from the front
+    x, y = q[..., 0], q[..., 1]
+    area = 0.5 * (x * np.roll(y, -1, 1) - np.roll(x, -1, 1) * y).sum(axis=1)
+    q[area < 0] = q[area < 0][:, ::-1]
+    centre = q.mean(axis=1, keepdims=True)
+    radius = np.linalg.norm(q - centre, axis=2, keepdims=True)
+    # the quad finder's contour runs through the dark pixels along the border: inside
+    # a dark border, outside a light one
+    lin_q = np.asarray(lin)
+    dark = border_is_dark(lin_q, q, table.n - 2)
+    grow = np.where(dark, grow_px, -grow_px)[:, None, None]
+    q = centre + (q - centre) * (1.0 + grow * np.sqrt(2.0) / np.maximum(radius, 1.0))
+    n = table.n
+    size = float(n)
+    square = np.array([[0.0, 0.0], [size, 0.0], [size, size], [0.0, size]])
+    R = len(q)
+    grid = _module_grid(n)
+    # the quiet zone just outside the border, half a module out
+    s = np.linspace(0.5, size - 0.5, 2 * n)
+    lo, hi = np.full_like(s, -0.5), np.full_like(s, size + 0.5)
+    out_ring = np.concatenate([np.c_[s, lo], np.c_[s, hi], np.c_[lo, s], np.c_[hi, s]])
+    best_err: np.ndarray = np.full(R, 10**6)
+    best_id: np.ndarray = np.zeros(R, dtype=np.int64)
+    best_roll: np.ndarray = np.zeros(R, dtype=np.intp)
+    H0 = homographies(np.broadcast_to(square, (R, 4, 2)).copy(), q)
+    pts = apply_h(H0, np.broadcast_to(grid, (R, *grid.shape)))
+    vals = bilinear(lin, pts[..., 0], pts[..., 1]).reshape(R, n, n, 9).mean(axis=3)
+    ring = apply_h(H0, np.broadcast_to(out_ring, (R, *out_ring.shape)))
+    quiet = np.median(bilinear(lin, ring[..., 0], ring[..., 1]), axis=1)
+    border = np.concatenate([vals[:, 0, :], vals[:, -1, :], vals[:, 1:-1, 0], vals[:, 1:-1, -1]],
+                            axis=1)
+    border_level = np.median(border, axis=1)
+    thr = 0.5 * (border_level + quiet)
+    # cells within a fifth of the contrast of the threshold (small cells under blur)
+    # count neither way
+    band = ambiguity * np.abs(quiet - border_level)
+    white = vals > (thr + band)[:, None, None]  # (R, n, n)
+    black = vals < (thr - band)[:, None, None]
+    for roll in range(4):
+        # rolling the corners by one turns the sampled pattern by a quarter
+        pw = np.rot90(white, k=roll, axes=(1, 2)).reshape(R, n * n).astype(np.float32)
+        pb = np.rot90(black, k=roll, axes=(1, 2)).reshape(R, n * n).astype(np.float32)
+        dist = pw @ (1.0 - table.flat).T + pb @ table.flat.T  # (R, N) confident errors
+        j = np.argmin(dist, axis=1)
+        d = dist[np.arange(R), j]
+        better = d < best_err
+        best_err = np.where(better, d, best_err)
+        best_id = np.where(better, table.ids[j], best_id)
+        best_roll = np.where(better, roll, best_roll)
+    sure = (white | black).reshape(R, -1).mean(axis=1)
+    ok = (best_err <= max_errors) & (sure >= 0.6)
+    out = np.stack([np.roll(q[i], -int(best_roll[i]), axis=0) for i in np.flatnonzero(ok)]) \
+        if ok.any() else np.zeros((0, 4, 2))
+    return out, best_id[ok], np.flatnonzero(ok), best_err
