@@ -31,6 +31,8 @@ from artcal_ros.core.synth import (
     Backdrop,
     Camera,
     Photometry,
+    RenderedView,
+    marker_truth,
     random_poses,
     render_view,
     smooth_poses,
@@ -70,15 +72,36 @@ def frame_photometry(name: str, rng: np.random.Generator) -> Photometry:
                                     defocus_px=float(rng.uniform(0.0, 0.6)))
 
 
+def motion_blur_from_poses(board: Board, cam: Camera, poses: list[tuple[np.ndarray,
+                                                                        np.ndarray]],
+                           index: int, open_fraction: float) -> tuple[float, float]:
+    """Blur (length px, angle deg) of frame ``index`` of a sequence: how far the markers'
+    images move while the shutter is open (``open_fraction`` of the frame interval), from
+    the neighbouring frames (central difference)."""
+    lo, hi = max(index - 1, 0), min(index + 1, len(poses) - 1)
+    if hi == lo:
+        return 0.0, 0.0
+    _, a, inside_a, _ = marker_truth(board, cam, *poses[lo])
+    _, b, inside_b, _ = marker_truth(board, cam, *poses[hi])
+    both = inside_a & inside_b
+    if not both.any():
+        return 0.0, 0.0
+    per_frame = np.median(b[both] - a[both], axis=0) / (hi - lo)
+    dx, dy = per_frame * open_fraction
+    return float(min(np.hypot(dx, dy), 100.0)), float(np.degrees(np.arctan2(dy, dx)))
+
+
 def write_dataset(board: Board, cam: Camera, out: str | Path, *, frames: int, seed: int = 0,
                   photometry: str = "clean", encoding: str = "mono8",
                   partial_fraction: float = 0.3, motion: str = "random", bag: bool = False,
                   rate_hz: float = 10.0, topic: str = "/camera/image_raw",
-                  overwrite: bool = False,
+                  shutter_s: float = 0.0, overwrite: bool = False,
                   progress: Callable[[], None] | None = None) -> Path:
     """Render ``frames`` views and write them (PNGs or a bag) with ``truth.json``.
 
-    Deterministic: the same arguments give the same images and truth.
+    Deterministic: the same arguments give the same images and truth. With
+    ``motion="smooth"`` and ``shutter_s`` > 0 each frame is blurred by the camera's own
+    motion during that exposure time (at ``rate_hz`` frames per second).
 
     Returns:
         the path of the written ``truth.json``.
@@ -94,6 +117,9 @@ def write_dataset(board: Board, cam: Camera, out: str | Path, *, frames: int, se
         raise ParameterError(f"--rate: {rate_hz} must be > 0 (frames per second)")
     if motion not in ("random", "smooth"):
         raise ParameterError(f"--motion: {motion!r} is not one of random, smooth")
+    if not 0 <= shutter_s <= 1 / rate_hz:
+        raise ParameterError(f"--shutter: {shutter_s} s must be between 0 and the frame "
+                             f"interval {1 / rate_hz:g} s")
     out = Path(out)
     rng = np.random.default_rng(seed)
     make = smooth_poses if motion == "smooth" else random_poses
@@ -102,14 +128,21 @@ def write_dataset(board: Board, cam: Camera, out: str | Path, *, frames: int, se
     phot_rng = np.random.default_rng([seed, 1])
     # one room for the whole sequence: the background moves with the camera, as it should
     wall = Backdrop.random(board, np.random.default_rng([seed, 2]))
+
+    def render(i: int) -> RenderedView:
+        phot = frame_photometry(photometry, phot_rng)
+        if motion == "smooth" and shutter_s > 0:
+            length, angle = motion_blur_from_poses(board, cam, poses, i, shutter_s * rate_hz)
+            phot = phot.with_(motion_px=length, motion_angle_deg=angle)
+        return render_view(board, cam, *poses[i], rng=rng, encoding=encoding, photometry=phot,
+                           backdrop=wall)
+
     if bag:
         from artcal_ros.bag import BagWriter
         from artcal_ros.core.images import numpy_to_image
         with BagWriter(out, storage="directory", overwrite=overwrite) as writer:
-            for i, (rvec, tvec) in enumerate(poses):
-                view = render_view(board, cam, rvec, tvec, rng=rng, encoding=encoding,
-                                   photometry=frame_photometry(photometry, phot_rng),
-                               backdrop=wall)
+            for i in range(len(poses)):
+                view = render(i)
                 stamp = BAG_START_NS + round(i * 1e9 / rate_hz)
                 writer.write(topic, "sensor_msgs/msg/Image", stamp,
                              numpy_to_image(view.image, encoding, stamp, "camera"))
@@ -121,10 +154,8 @@ def write_dataset(board: Board, cam: Camera, out: str | Path, *, frames: int, se
             out.mkdir(parents=True, exist_ok=True)
         except OSError as e:
             raise ArtcalError(f"--out: cannot create directory {out}: {e.strerror}") from e
-        for i, (rvec, tvec) in enumerate(poses):
-            view = render_view(board, cam, rvec, tvec, rng=rng, encoding=encoding,
-                               photometry=frame_photometry(photometry, phot_rng),
-                               backdrop=wall)
+        for i in range(len(poses)):
+            view = render(i)
             name = f"frame_{i:04d}.png"
             if not cv2.imwrite(str(out / name), view.image):
                 raise ArtcalError(f"cannot write {out / name}")
@@ -134,7 +165,7 @@ def write_dataset(board: Board, cam: Camera, out: str | Path, *, frames: int, se
     truth = out / "truth.json"
     write_truth(truth, cam, board, records, seed=seed,
                 photometry={"name": photometry, "encoding": encoding, "motion": motion,
-                            "partial_fraction": partial_fraction,
+                            "partial_fraction": partial_fraction, "shutter_s": shutter_s,
                             **({"rate_hz": rate_hz, "topic": topic} if bag else {})})
     return truth
 
@@ -181,6 +212,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "random key views (default random)")
     parser.add_argument("--rate", type=float, default=10.0, metavar="HZ",
                         help="frame rate of the bag's time stamps (default 10)")
+    parser.add_argument("--shutter", type=float, default=0.0, metavar="SECONDS",
+                        help="with --motion smooth: exposure time; each frame is blurred by "
+                             "the camera's motion while the shutter is open (default 0: off)")
     parser.add_argument("--topic", default="/camera/image_raw",
                         help="image topic in the bag (default /camera/image_raw)")
     parser.add_argument("--overwrite", action="store_true",
@@ -198,7 +232,8 @@ def run(args: argparse.Namespace) -> int:
                           photometry=args.photometry, encoding=args.encoding,
                           partial_fraction=args.partial_fraction, motion=args.motion,
                           bag=args.bag, rate_hz=args.rate, topic=args.topic,
-                          overwrite=args.overwrite, progress=bar.update)
+                          shutter_s=args.shutter, overwrite=args.overwrite,
+                          progress=bar.update)
     bar.close()
     seconds = time.monotonic() - start
     kind = "bag" if args.bag else "PNGs"

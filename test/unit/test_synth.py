@@ -308,11 +308,24 @@ def test_cli_camera_from_a_camera_info_file(tmp_path: Path) -> None:
     assert cv2.imread(str(out / "frame_0000.png")).shape[:2] == (240, 320)
 
 
+def test_motion_blur_follows_the_camera() -> None:
+    """The camera slides 1 cm per frame along the board's x at 1 m: the board's image moves
+    6 px per frame the other way; a shutter open for half the frame smears it 3 px."""
+    cam = Camera("plumb_bob", np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]]),
+                 np.zeros(5), (640, 480))
+    poses = [(np.zeros(3), np.array([-0.75 - 0.01 * k, -0.35, 1.0])) for k in range(3)]
+    length, angle = synth_cmd.motion_blur_from_poses(Board(), cam, poses, 1, 0.5)
+    assert abs(length - 3.0) < 1e-9 and abs(abs(angle) - 180.0) < 1e-6
+
+
 def test_cli_refuses_bad_input(tmp_path: Path) -> None:
     with pytest.raises(ParameterError, match="preset"):
         _run_cli(["--camera", "nope", "--frames", "1", "--out", str(tmp_path / "x")])
     with pytest.raises(ParameterError, match="encoding"):
         _run_cli(["--encoding", "yuv9", "--frames", "1", "--out", str(tmp_path / "x")])
+    with pytest.raises(ParameterError, match="shutter"):
+        _run_cli(["--shutter", "0.5", "--rate", "10", "--frames", "1", "--out",
+                  str(tmp_path / "x")])
     with pytest.raises(ParameterError, match="photometry"):
         _run_cli(["--photometry", "dim", "--frames", "1", "--out", str(tmp_path / "x")])
     (tmp_path / "bad.json").write_text("{}")
