@@ -380,8 +380,7 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
     holdout = float("nan")
     if cross_validation_folds > 1:
         say(f"{cross_validation_folds}-fold cross-validation")
-        holdout = cross_validate(views, sol, size, k3=k3, folds=cross_validation_folds,
-                                 weighted=weighted)
+        holdout = cross_validate(views, sol, folds=cross_validation_folds, weighted=weighted)
     geo = view_geometry(views, size, sol.camera_matrix)
     coverage = float(np.mean(geo.cells.any(axis=0)))
     warnings = _warnings(sol, size, views, std_dev, effects, rms, holdout, coverage)

@@ -25,11 +25,11 @@ from artcal_ros.core.calibrate_solve import (
     INTRINSIC_NAMES,
     Solution,
     ViewPoints,
+    bundle_adjust,
     estimate_pose,
     point_weights,
     project,
     project_jacobian,
-    solve,
 )
 
 _UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 500, 1e-15)
@@ -184,8 +184,8 @@ def parameter_effect_px(sol: Solution, image_size: tuple[int, int],
     return per_param, float(np.sqrt(np.mean(var_pt))), float(np.sqrt(var_pt.max()))
 
 
-def cross_validate(views: Sequence[ViewPoints], sol: Solution, image_size: tuple[int, int],
-                   *, k3: bool, folds: int = 5, seed: int = 0, weighted: bool = False) -> float:
+def cross_validate(views: Sequence[ViewPoints], sol: Solution, *, folds: int = 5, seed: int = 0,
+                   weighted: bool = False) -> float:
     """k-fold hold-out reprojection RMS over views, pixels (NaN with fewer than 4 views).
 
     Each fold is solved from the other views (starting from ``sol``); every held-out view's
@@ -199,10 +199,15 @@ def cross_validate(views: Sequence[ViewPoints], sol: Solution, image_size: tuple
     sq: list[np.ndarray] = []
     for f in range(k):
         test = set(order[f::k].tolist())
-        train = [v for i, v in enumerate(views) if i not in test]
+        train_idx = [i for i in range(n) if i not in test]
+        train = [views[i] for i in train_idx]
         try:
-            fold, _ = solve(train, image_size, sol.model, k3=k3, initial=sol,
-                            weighted=weighted)
+            # Start from the full solve's intrinsics and poses: a few LM steps suffice.
+            K, D, _, _ = bundle_adjust(train, sol.camera_matrix, sol.dist_coeffs, sol.model,
+                                       free=sol.free, weighted=weighted,
+                                       poses=(sol.rvecs[train_idx], sol.tvecs[train_idx]))
+            fold = Solution(K, D, sol.model, sol.rvecs[train_idx], sol.tvecs[train_idx],
+                            sol.free)
         except Exception:  # a fold that cannot be solved says the set is fragile
             return float("inf")
         for i in sorted(test):

@@ -31,7 +31,7 @@ DIST_NAMES = {
     "equidistant": ("k1", "k2", "k3", "k4"),
 }
 
-_CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 200, 1e-12)
+_CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-10)
 
 
 @dataclass(frozen=True)
@@ -267,7 +267,7 @@ def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str
                 K0, D0 = initial.camera_matrix.copy(), initial.dist_coeffs.copy()
             else:
                 K0, D0 = _initial_fisheye(views, image_size)
-            K, D, rv, tv = _bundle_adjust(views, K0, D0, model, free=free,
+            K, D, rv, tv = bundle_adjust(views, K0, D0, model, free=free,
                                           weighted=weighted)
             std = None
             dist: np.ndarray = np.asarray(D, dtype=np.float64).ravel()
@@ -299,11 +299,13 @@ def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str
     except cv2.error as e:
         raise CalibrationError(
             f"the {model} solver failed ({e.err.strip() if hasattr(e, 'err') else e}); "
-            "add views that tilt the board in different directions") from None
+            "check that the board parameters (board.cols, board.rows, board.marker_length, "
+            "board.marker_separation) match the printed board, and add views that tilt the "
+            "board in different directions") from None
     K = np.asarray(K, dtype=np.float64)
     if weighted and model != "equidistant" and np.all(np.isfinite(K)):
         # OpenCV weighs every point alike; refine with each point's measured uncertainty.
-        K, dist, rv, tv = _bundle_adjust(
+        K, dist, rv, tv = bundle_adjust(
             views, K, dist, model, free=free, weighted=True,
             poses=(np.asarray(rv, np.float64).reshape(-1, 3),
                    np.asarray(tv, np.float64).reshape(-1, 3)))
@@ -332,7 +334,7 @@ def point_weights(view: ViewPoints) -> np.ndarray:
     return np.where(known, w, float(np.median(w[known])))
 
 
-def _bundle_adjust(views: list[ViewPoints], K0: np.ndarray, D0: np.ndarray, model: str,
+def bundle_adjust(views: list[ViewPoints], K0: np.ndarray, D0: np.ndarray, model: str,
                    *, free: tuple[str, ...], weighted: bool = False,
                    poses: tuple[np.ndarray, np.ndarray] | None = None,
                    max_iterations: int = 100) -> tuple[np.ndarray, np.ndarray, np.ndarray,

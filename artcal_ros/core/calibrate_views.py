@@ -104,19 +104,19 @@ def layout_outliers(view: ViewPoints, board: Board) -> np.ndarray:
     np.add.at(pos, inverse, view.image_points)
     pos /= np.bincount(inverse, minlength=k)[:, None]
     rc = np.array([board.cell_of(int(i)) for i in ids], dtype=np.float64).reshape(-1, 2)
-    bad = np.zeros(k, dtype=bool)
-    for m in range(k):
-        near = np.max(np.abs(rc - rc[m]), axis=1) <= 2
-        near[m] = False
-        if near.sum() < 4:
-            continue
-        X = np.column_stack([rc[near][:, 1], rc[near][:, 0], np.ones(int(near.sum()))])
-        coef, *_ = np.linalg.lstsq(X, pos[near], rcond=None)
-        pitch_px = float(np.sqrt(abs(np.linalg.det(coef[:2]))))
-        if not np.isfinite(pitch_px) or pitch_px <= 0:
-            continue
-        pred = np.array([rc[m, 1], rc[m, 0], 1.0]) @ coef
-        bad[m] = np.linalg.norm(pred - pos[m]) > LAYOUT_TOLERANCE * pitch_px
+    # One affine fit per marker, all at once: normal equations summed over neighbours.
+    near = np.max(np.abs(rc[:, None, :] - rc[None, :, :]), axis=2) <= 2
+    np.fill_diagonal(near, False)
+    X = np.column_stack([rc[:, 1], rc[:, 0], np.ones(k)])
+    XtX = np.einsum("mj,ja,jb->mab", near.astype(np.float64), X, X)
+    XtY = np.einsum("mj,ja,jb->mab", near.astype(np.float64), X, pos)
+    enough = near.sum(axis=1) >= 4
+    XtX[~enough] = np.eye(3)
+    coef = np.linalg.solve(XtX + 1e-9 * np.eye(3), XtY)  # (k, 3, 2)
+    pitch_px = np.sqrt(np.abs(np.linalg.det(coef[:, :2, :])))
+    pred = np.einsum("ma,mab->mb", X, coef)
+    miss = np.linalg.norm(pred - pos, axis=1)
+    bad = enough & (pitch_px > 0) & (miss > LAYOUT_TOLERANCE * pitch_px)
     return bad
 
 
