@@ -6,7 +6,7 @@ from collections.abc import Iterator
 
 import pytest
 
-from test.integration.ros_harness import Probe, configure_ros_env
+from test.integration.ros_harness import Probe, configure_ros_env, stop_all
 
 configure_ros_env()
 
@@ -17,3 +17,10 @@ def probe() -> Iterator[Probe]:
     p = Probe()
     yield p
     p.close()
+
+
+@pytest.fixture(autouse=True)
+def _stop_node_processes() -> Iterator[None]:
+    """No node outlives its test, even a failed one."""
+    yield
+    stop_all()

@@ -34,6 +34,17 @@ def configure_ros_env() -> None:
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
 
 
+def stop_all() -> None:
+    """Stop every node process still running (after a failed test)."""
+    while RUNNING:
+        node = RUNNING.pop()
+        if node.proc.poll() is None:
+            # If it needs SIGKILL, the test already failed for a reason of its own.
+            with contextlib.suppress(AssertionError):
+                node.stop()
+        node._close()
+
+
 def wait_until(predicate: Callable[[], Any], timeout: float, what: str,
                period: float = 0.05) -> Any:
     """Poll ``predicate`` until it returns something truthy; AssertionError naming ``what``."""
@@ -47,11 +58,14 @@ def wait_until(predicate: Callable[[], Any], timeout: float, what: str,
         time.sleep(period)
 
 
+RUNNING: list[NodeProcess] = []  # stopped after each test by the conftest, pass or fail
+
+
 class NodeProcess:
     """One of our console scripts running in its own process group, output to files."""
 
     def __init__(self, script: str, ros_args: Sequence[str], log_dir: Path,
-                 name: str | None = None) -> None:
+                 name: str | None = None, *, per_test: bool = True) -> None:
         self.name = name or script
         self.out_path = log_dir / f"{self.name}.out"
         self.err_path = log_dir / f"{self.name}.err"
@@ -60,6 +74,8 @@ class NodeProcess:
         self.proc = subprocess.Popen([str(BIN / script), "--ros-args", *ros_args], cwd=ROOT,
                                      stdout=self._out, stderr=self._err,
                                      start_new_session=True)
+        if per_test:  # else the fixture that started it stops it
+            RUNNING.append(self)
 
     def output(self) -> str:
         """stdout and stderr so far (rclpy logs to stderr)."""
@@ -74,8 +90,10 @@ class NodeProcess:
         try:
             return self.proc.wait(timeout)
         except subprocess.TimeoutExpired:
+            text = self.output()[-2000:]
+            self.stop()
             raise AssertionError(f"{self.name} still running after {timeout:g} s:\n"
-                                 f"{self.output()[-2000:]}") from None
+                                 f"{text}") from None
         finally:
             self._close()
 
