@@ -208,7 +208,7 @@ class Detector:
             fit = refine_quads(lin, quads, dark, bits, margin_px=self.config.margin_px,
                                level_modules=self.config.level_modules,
                                curve_min_px=self.config.curve_min_px,
-                               passes=2,
+                               passes=1,
                                allow_curvature=lens is None and self.config.estimate_lens,
                                lens=lens,
                                inner_same=inner_border_cells(self.board, ids,

@@ -264,7 +264,8 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
                  min_contrast: float = 0.02, passes: int = 2,
                  lens: LensModel | DivisionLens | None = None,
                  inner_same: np.ndarray | None = None,
-                 quiet_modules: float = 1.0, method: str = "model") -> EdgeFit:
+                 quiet_modules: float = 1.0, method: str = "model",
+                 max_profiles: int = 40) -> EdgeFit:
     """Refine approximate quads to sub-pixel corners from their border edges.
 
     Args:
@@ -292,6 +293,7 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         quiet_modules: width of the quiet zone outside the border, in modules.
         method: ``model`` (blurred-step model fit, :mod:`detect_model`) or ``area``
             (the symmetric-area estimator of this module's docstring).
+        max_profiles: most profiles per side (long sides are sampled sparser).
         lens: optional lens model; the final edge points are then mapped to
             undistorted pixels, fitted with straight lines there, and the
             corners mapped back.
@@ -312,7 +314,7 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
 
     # along-side profile positions, the same count K for every side (padded)
     usable = np.maximum(length - 2.0 * margin_px, 0.0)
-    k_side = np.clip(np.round(usable).astype(np.intp), 0, 160)
+    k_side = np.clip(np.round(usable).astype(np.intp), 0, max_profiles)
     K = max(int(k_side.max()), 1)
     kk = np.arange(K)[None, :]
     t = margin_px + (kk + 0.5) / np.maximum(k_side[:, None], 1) * usable[:, None]
