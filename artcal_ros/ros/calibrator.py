@@ -22,6 +22,7 @@ import os
 import sys
 import threading
 import time
+from dataclasses import replace
 from typing import Any
 
 import rclpy
@@ -237,6 +238,8 @@ class CalibratorNode(Node):
         values, result = check_update(self.params, changes)
         if values is not None:
             self.params = values
+            self.collector.config = replace(self.collector.config,
+                                            min_views=int(values["min_views"]))
         return result
 
     def stop(self) -> None:
