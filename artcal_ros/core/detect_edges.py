@@ -29,6 +29,7 @@ corner k is the intersection of sides k-1 and k.
 
 from __future__ import annotations
 
+import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
@@ -445,7 +446,8 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         base = a[:, None, :] + t[..., None] * u[:, None, :] + s0[..., None] * n[:, None, :]
         _, m_px = _module_geometry(corners, base, n, bits)
         m_side = np.where(present, m_px, np.nan)
-        with np.errstate(all="ignore"):
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
             m_med = np.nan_to_num(np.nanmedian(m_side, axis=1), nan=1.0)
         rows = 0 if inner_same is None else int(np.shape(inner_same)[2])
         if rows == 0:
@@ -488,7 +490,8 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         model.rms = rms
         model.count = count
         rel = s_s - np.einsum("skjp,sp->skj", basis, coef)
-        with np.errstate(all="ignore"):
+        with np.errstate(all="ignore"), warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # sides without samples: NaN
             hi = np.nanmedian(np.where(mask & (rel > 0.7), values, np.nan).reshape(S, -1), 1)
             lo = np.nanmedian(np.where(mask & (rel < -0.7), values, np.nan).reshape(S, -1), 1)
         contrast = np.abs(np.nan_to_num(hi - lo))

@@ -21,6 +21,8 @@ is separable). All sides are solved together by damped Gauss-Newton.
 
 from __future__ import annotations
 
+import warnings
+
 import numpy as np
 
 _SQRT2 = np.sqrt(2.0)
@@ -112,7 +114,8 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, mask: np.ndarray, basis: n
     """
     S = values.shape[0]
     m = mask.astype(np.float64)
-    with np.errstate(all="ignore"):
+    with np.errstate(all="ignore"), warnings.catch_warnings():
+        warnings.simplefilter("ignore", RuntimeWarning)  # sides without samples: NaN
         rel = s - np.einsum("skjp,sp->skj", basis, coef0)
         A = np.nanmedian(np.where(mask & (rel < -0.3), values, np.nan).reshape(S, -1), axis=1)
         B = np.nanmedian(np.where(mask & (rel > 0.3), values, np.nan).reshape(S, -1), axis=1)

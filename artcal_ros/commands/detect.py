@@ -1,0 +1,117 @@
+"""``artcal detect``: find the board's markers in images; write corners and centres as JSON.
+
+    artcal detect frames/*.png --params config/calibrator.yaml --json detections.json
+    artcal detect img.png --set board.polarity=mixed --json out.json --overlay overlays/
+
+The JSON file is ``{"images": [{"file", "width", "height", "markers": [{"id",
+"corners": [[x, y] x 4], "center": [x, y]}]}]}`` in OpenCV pixel coordinates
+(the centre of the top-left pixel is (0, 0)); corners run TL, TR, BR, BL on the
+board. ``--overlay DIR`` writes one PNG per image with each marker's quad, id,
+corners and centre drawn on it.
+"""
+
+from __future__ import annotations
+
+import argparse
+import json
+import os
+from pathlib import Path
+from typing import Any
+
+import cv2
+import numpy as np
+
+from artcal_ros.commands.common import add_params_arguments, params_from_args
+from artcal_ros.core.board import Board
+from artcal_ros.core.detect import Detector
+from artcal_ros.core.detections import Detections
+from artcal_ros.core.errors import ImageFormatError, ParameterError
+from artcal_ros.progress import Progress
+
+
+def add_arguments(parser: argparse.ArgumentParser) -> None:
+    """Arguments of ``artcal detect``."""
+    parser.add_argument("images", nargs="+", metavar="IMAGE",
+                        help="image files (PNG, JPEG, TIFF, ...; 8 or 16 bit, grey or colour)")
+    add_params_arguments(parser)
+    parser.add_argument("--json", required=True, metavar="OUT.json",
+                        help="where to write the detections")
+    parser.add_argument("--overlay", metavar="DIR", default=None,
+                        help="also write <DIR>/<image name>.png with the detections drawn")
+    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+
+
+def read_image(path: str) -> np.ndarray:
+    """An image file as (H, W) uint8/uint16 or (H, W, 3) BGR uint8.
+
+    Raises:
+        ImageFormatError: naming the file when it is missing or cannot be decoded.
+    """
+    if not os.path.isfile(path):
+        raise ImageFormatError(f"cannot read image {path}: no such file")
+    image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+    if image is None:
+        raise ImageFormatError(f"cannot read image {path}: not an image OpenCV can decode")
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+    if image.dtype not in (np.uint8, np.uint16):
+        raise ImageFormatError(f"cannot use image {path}: pixel type {image.dtype}; "
+                               "save it as 8- or 16-bit")
+    return np.asarray(image)
+
+
+def draw_detections(image: np.ndarray, dets: Detections) -> np.ndarray:
+    """(H, W, 3) BGR uint8: ``image`` with quads (green), ids, corners (red) and centres (blue).
+
+    Points are drawn with 1/16-pixel precision at their sub-pixel positions.
+    """
+    img = image
+    if img.dtype == np.uint16:
+        img = (img / 257.0).astype(np.uint8)
+    out = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img.ndim == 2 else img.copy()
+    shift = 4
+    scale = float(1 << shift)
+    thick = max(1, round(min(out.shape[:2]) / 480))
+    for marker_id, quad, centre in zip(dets.ids, dets.corners_px, dets.centers_px, strict=True):
+        pts = np.round(quad * scale).astype(np.int32)
+        cv2.polylines(out, [pts], True, (0, 200, 0), thick, cv2.LINE_AA, shift)
+        for p in pts:
+            cv2.circle(out, (int(p[0]), int(p[1])), int(2 * scale), (0, 0, 255), thick,
+                       cv2.LINE_AA, shift)
+        c = np.round(centre * scale).astype(np.int32)
+        cv2.drawMarker(out, (int(c[0] >> shift), int(c[1] >> shift)), (255, 80, 0),
+                       cv2.MARKER_CROSS, 6 * thick, thick)
+        cv2.putText(out, str(int(marker_id)), (int(quad[0, 0]) + 2, int(quad[0, 1]) - 3),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.35 * thick, (0, 120, 255), thick, cv2.LINE_AA)
+    return out
+
+
+def run(args: argparse.Namespace) -> int:
+    """Detect in every image, write the JSON (and overlays); print a one-line summary."""
+    board = Board.from_params(params_from_args(args))
+    detector = Detector(board)
+    out_json = Path(args.json)
+    if out_json.parent and not out_json.parent.exists():
+        raise ParameterError(f"--json {args.json}: directory {out_json.parent} does not exist")
+    overlay_dir = Path(args.overlay) if args.overlay else None
+    if overlay_dir is not None:
+        overlay_dir.mkdir(parents=True, exist_ok=True)
+    for path in args.images:  # fail before any work on a missing file
+        if not os.path.isfile(path):
+            raise ImageFormatError(f"cannot read image {path}: no such file")
+    records: list[dict[str, Any]] = []
+    total = 0
+    for path in Progress(args.images, label="detect",
+                         enabled=not args.quiet and len(args.images) > 1):
+        image = read_image(path)
+        dets = detector.detect(image, source=path)
+        records.append(dets.to_json(file=path))
+        total += len(dets)
+        if overlay_dir is not None:
+            name = overlay_dir / (Path(path).stem + ".png")
+            cv2.imwrite(str(name), draw_detections(image, dets))
+    tmp = out_json.with_name(out_json.name + ".tmp")
+    tmp.write_text(json.dumps({"images": records}, indent=1) + "\n")
+    os.replace(tmp, out_json)
+    print(f"wrote {args.json}: {total} markers in {len(records)} image(s)")
+    return 0
