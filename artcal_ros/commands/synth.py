@@ -237,7 +237,7 @@ def run(args: argparse.Namespace) -> int:
     bar.close()
     seconds = time.monotonic() - start
     kind = "bag" if args.bag else "PNGs"
-    print(f"wrote {args.frames} frames ({cam.width}x{cam.height} {cam.model}, "
+    print(f"wrote {args.frames} frames ({cam.width}x{cam.height} {Path(args.camera).name}, "
           f"{args.encoding}) as {kind} in {args.out} and truth in {truth} "
           f"({seconds:.1f} s, {seconds / args.frames:.2f} s/frame)")
     return 0
