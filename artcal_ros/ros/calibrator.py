@@ -43,6 +43,7 @@ from artcal_ros.core.overlay import render_heat_map, render_overlay
 from artcal_ros.core.params import ParamValue
 from artcal_ros.ros import msgs
 from artcal_ros.ros.diagnostics import Counters, diagnostic_array
+from artcal_ros.ros.latest import LatestWorker
 from artcal_ros.ros.parameters import check_update, declare_parameters
 from artcal_ros.ros.solve import SolveOutcome, busy_threads, run_solve
 
@@ -100,8 +101,6 @@ class CalibratorNode(Node):
         self.set_info_client: Any = self.create_client(SetCameraInfo, "set_camera_info",
                                                   callback_group=services)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=timers)
-
-        from artcal_ros.ros.latest import LatestWorker
 
         self.worker: LatestWorker[Any] = LatestWorker(self._process, self._on_worker_error,
                                                       name="detect")

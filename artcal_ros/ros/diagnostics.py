@@ -31,25 +31,27 @@ class Counters:
     failed: int = 0
     markers_last: int = 0
     broken_reported: int = 0
+    failed_reported: int = 0
 
 
 def diagnostic_array(node_name: str, camera_name: str, counters: Counters, dropped: int,
                      readiness: Readiness, last_solve: str, stamp: Time) -> DiagnosticArray:
     """One DiagnosticStatus named after the node: counts, coverage and readiness.
 
-    Level WARN while broken frames keep arriving (since the previous report) or after a
-    detection failure, else OK.
+    Level WARN while broken frames or detection failures keep coming (since the previous
+    report), else OK.
     """
     new_broken = counters.broken - counters.broken_reported
+    new_failed = counters.failed - counters.failed_reported
     counters.broken_reported = counters.broken
-    if new_broken or counters.failed:
-        level = DiagnosticStatus.WARN
-        message = f"{new_broken} broken frames skipped in the last second; " \
-                  f"{readiness.summary()}" if new_broken else \
-                  f"{counters.failed} frames failed detection; {readiness.summary()}"
-    else:
-        level = DiagnosticStatus.OK
-        message = readiness.summary()
+    counters.failed_reported = counters.failed
+    problems = []
+    if new_broken:
+        problems.append(f"{new_broken} broken frames skipped in the last second")
+    if new_failed:
+        problems.append(f"detection failed on {new_failed} frames in the last second")
+    level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
+    message = "; ".join([*problems, readiness.summary()])
     values = {
         "frames seen": counters.seen,
         "frames processed": counters.processed,

@@ -18,7 +18,7 @@ from typing import Any
 import numpy as np
 import pytest
 import yaml
-from diagnostic_msgs.msg import DiagnosticArray
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
@@ -271,6 +271,9 @@ def test_both_qos_reach_the_node_and_broken_frames_are_skipped(
     assert fed.count("frames seen") == sent + fed.broken
     assert fed.count("frames dropped (busy)") == 0
     assert "broken frame" in fed.node.output()  # the throttled warning
+    warned = [st for array in list(fed.diagnostics) for st in array.status
+              if st.name.startswith("cal_fed:") and st.level == DiagnosticStatus.WARN]
+    assert warned and "broken frames skipped" in warned[0].message
     answer = probe.call(Trigger, "/cal_fed/calibrate", timeout=120)
     assert answer.success, answer.message
 
