@@ -98,8 +98,8 @@ class CalibratorNode(Node):
                                      callback_group=images)
         self.create_service(Trigger, "~/calibrate", self._on_calibrate, callback_group=services)
         self.create_service(Trigger, "~/reset", self._on_reset, callback_group=services)
-        self.set_info_client: Any = self.create_client(SetCameraInfo, "set_camera_info",
-                                                  callback_group=services)
+        self.set_info_client: Any = self.create_client(
+            SetCameraInfo, "set_camera_info", callback_group=services)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=timers)
 
         self.worker: LatestWorker[Any] = LatestWorker(self._process, self._on_worker_error,
@@ -244,7 +244,7 @@ class CalibratorNode(Node):
     def stop(self) -> None:
         """Stop the detection worker and any solve waiting (for shutdown)."""
         self._stopping.set()
-        self.worker.stop()
+        self.worker.stop(timeout=0.5)
 
 
 def main(args: list[str] | None = None) -> int:
@@ -264,13 +264,13 @@ def main(args: list[str] | None = None) -> int:
         pass
     finally:
         node.stop()
-        executor.shutdown(timeout_sec=2.0)
+        executor.shutdown(timeout_sec=1.0)
         node.destroy_node()
         rclpy.try_shutdown()
     return _exit_status_when_threads_done(0)
 
 
-def _exit_status_when_threads_done(status: int, timeout: float = 3.0) -> int:
+def _exit_status_when_threads_done(status: int, timeout: float = 2.0) -> int:
     """Wait up to ``timeout`` s for solve and detection threads, else leave at once.
 
     A daemon thread still inside OpenCV when the interpreter finalizes can abort the
