@@ -50,9 +50,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="also write summary.json and PNG plots into DIR")
     parser.add_argument("--max-views", type=int, default=40, metavar="N",
                         help="solve from at most N diverse views (default 40)")
-    parser.add_argument("--max-frames", type=int, default=150, metavar="N",
+    parser.add_argument("--max-frames", type=int, default=400, metavar="N",
                         help="from a bag, detect markers in at most N frames spread evenly "
-                             "over the recording (default 150; 0 = every frame)")
+                             "over the recording (default 400; 0 = every frame)")
+    parser.add_argument("--time-budget", type=float, default=40.0, metavar="S",
+                        help="from a bag, space the frames so that reading and detecting "
+                             "take about S seconds (default 40; 0 = no limit)")
     parser.add_argument("--k3", action="store_true",
                         help="also estimate k3 (plumb_bob; for strong wide-angle distortion)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
@@ -88,28 +91,46 @@ def _bag_topic(topics: dict[str, str], wanted: str | None, bag: str) -> str:
                          "choose one with --topic")
 
 
-def _bag_frames(bag: str, topic: str | None, max_frames: int,
+def _bag_frames(bag: str, topic: str | None, max_frames: int, budget_s: float,
                 quiet: bool) -> Iterator[tuple[str, np.ndarray]]:
+    """Frames of the bag's image topic, spread evenly over the recording.
+
+    At most ``max_frames`` (0: no limit) are decoded; with a time budget the spacing
+    adapts as detection goes, so reading and detecting stay within about ``budget_s``
+    seconds whatever the detector's speed (consecutive frames at 30 fps are nearly the
+    same view anyway).
+    """
     from artcal_ros.bag import BagReader
     from artcal_ros.core.images import compressed_to_numpy, image_to_numpy
 
+    start = time.monotonic()
     with BagReader(bag) as reader:
         name = _bag_topic(reader.topics, topic, bag)
         total = reader.message_count if len(reader.topics) == 1 else None
         if total is None:  # count this topic's messages (cheap: no decoding)
             total = sum(1 for _ in reader.messages(name))
-        stride = 1 if max_frames <= 0 or total <= max_frames else total / max_frames
-        wanted = {int(k * stride) for k in range(int(np.ceil(total / stride)))}
-        bar: Progress[Any] = Progress(total=len(wanted), label=f"detect {name}",
-                                      enabled=not quiet)
+        cap = total if max_frames <= 0 else min(max_frames, total)
+        bar: Progress[Any] = Progress(total=cap, label=f"detect {name}", enabled=not quiet)
+        taken = 0
+        next_index = 0.0
         for k, m in enumerate(reader.messages(name)):
-            if k not in wanted:
+            if k < next_index:
                 continue
             msg = m.decode()
             image = (compressed_to_numpy(msg) if m.msgtype.endswith("CompressedImage")
                      else image_to_numpy(msg))
             yield f"{name}#{k}@{m.log_time_ns}", image
+            taken += 1
             bar.update()
+            # Frames still affordable, spread over the messages still to come.
+            left = cap - taken
+            if budget_s > 0:
+                elapsed = time.monotonic() - start
+                per_frame = elapsed / taken
+                left = min(left, int(max(budget_s - elapsed, 0.0) / per_frame))
+            if left <= 0:
+                break
+            next_index = k + max(1.0, (total - k - 1) / left)
         bar.close()
 
 
@@ -191,7 +212,8 @@ def run(args: argparse.Namespace) -> int:
     if args.max_views < 3:
         raise ParameterError(f"--max-views {args.max_views}: must be at least 3")
     out = Path(args.output).expanduser() if args.output else output_path(params)
-    frames = (_bag_frames(args.bag, args.topic, args.max_frames, args.quiet) if args.bag
+    frames = (_bag_frames(args.bag, args.topic, args.max_frames, args.time_budget, args.quiet)
+              if args.bag
               else _file_frames(list(args.images), args.quiet))
     dets, size = detect_frames(frames, board)
 

@@ -281,3 +281,19 @@ def test_cli_calibrates_images_and_writes_report(tmp_path: Path,
     assert summary["points"] == "corners" and len(summary["views_used"]) >= 5
     assert {p.name for p in report.glob("*.png")} == {"residuals.png", "coverage.png",
                                                       "per_view_error.png"}
+
+
+def test_bag_topic_choice() -> None:
+    from artcal_ros.commands.calibrate import _bag_topic
+    from artcal_ros.core.errors import ParameterError
+
+    one = {"/cam/image": "sensor_msgs/msg/CompressedImage", "/tf": "tf2_msgs/msg/TFMessage"}
+    assert _bag_topic(one, None, "b") == "/cam/image"
+    two = {"/a": "sensor_msgs/msg/Image", "/camera/image_raw": "sensor_msgs/msg/Image"}
+    assert _bag_topic(two, None, "b") == "/camera/image_raw"
+    with pytest.raises(ParameterError, match="several image topics"):
+        _bag_topic({"/a": "sensor_msgs/msg/Image", "/b": "sensor_msgs/msg/Image"}, None, "b")
+    with pytest.raises(ParameterError, match="not an image topic"):
+        _bag_topic(one, "/tf", "b")
+    with pytest.raises(ParameterError, match="not in b"):
+        _bag_topic(one, "/nope", "b")
