@@ -255,9 +255,10 @@ class Detector:
             rq = np.asarray(rejected, dtype=np.float64).reshape(-1, 4, 2)
             sides = np.linalg.norm(rq - np.roll(rq, -1, axis=1), axis=2).min(axis=1)
             rq = rq[sides >= self.config.min_side_px]
-            dq, dids, _, err = decode_quads(lin, rq, self._patterns)
+            dq, dids, taken, err = decode_quads(lin, rq, self._patterns)
             # near misses: re-read on quads refined from their edges
             near = (err > 2) & (err <= 10)
+            near[taken] = False
             if near.any():
                 nq = rq[near]
                 dark = border_is_dark(lin, nq, self.board.bits)

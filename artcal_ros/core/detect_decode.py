@@ -39,6 +39,39 @@ class PatternTable:
         self.ids = ids
         self.flat = pats.reshape(len(pats), n * n).astype(np.float32)
         self.n = n
+        # blurred versions, centred and normalised for correlation: (N * L, n * n)
+        blurred = blurred_patterns(pats)  # (N, L, n * n)
+        self.levels = blurred.shape[1]
+        c = blurred - blurred.mean(axis=2, keepdims=True)
+        c /= np.maximum(np.linalg.norm(c, axis=2, keepdims=True), 1e-9)
+        self.unit = c.reshape(-1, n * n).astype(np.float32)
+
+
+BLUR_LEVELS = (0.0, 0.08, 0.16, 0.22)
+
+
+def blurred_patterns(pats: np.ndarray) -> np.ndarray:
+    """(P, L, n * n) float: printed patterns (P, n, n) (True = white) as cell means under blur.
+
+    Each level mixes a cell with its 4 neighbours (weight b) and diagonal ones (b^2),
+    for b in :data:`BLUR_LEVELS`; outside the marker is the quiet zone, the
+    opposite of the border's colour.
+    """
+    P, n, _ = pats.shape
+    f = pats.astype(np.float64)
+    surround = 1.0 - f[:, 0, 0]
+    pad = np.empty((P, n + 2, n + 2))
+    pad[:] = surround[:, None, None]
+    pad[:, 1:-1, 1:-1] = f
+    out = np.empty((P, len(BLUR_LEVELS), n * n))
+    for k, b in enumerate(BLUR_LEVELS):
+        centre = 1.0 - 4.0 * b - 4.0 * b * b
+        acc = centre * pad[:, 1:-1, 1:-1]
+        for dy, dx, w in ((-1, 0, b), (1, 0, b), (0, -1, b), (0, 1, b), (-1, -1, b * b),
+                          (-1, 1, b * b), (1, -1, b * b), (1, 1, b * b)):
+            acc = acc + w * pad[:, 1 + dy:n + 1 + dy, 1 + dx:n + 1 + dx]
+        out[:, k] = acc.reshape(P, n * n)
+    return out
 
 
 def _module_grid(n: int) -> np.ndarray:
@@ -51,7 +84,8 @@ def _module_grid(n: int) -> np.ndarray:
 
 
 def decode_quads(lin: np.ndarray, quads: np.ndarray, table: PatternTable, *,
-                 max_errors: int = 2, grow_px: float = 0.7, ambiguity: float = 0.2
+                 max_errors: int = 2, grow_px: float = 0.7, ambiguity: float = 0.2,
+                 min_corr: float = 0.85, corr_margin: float = 0.12
                  ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Decode candidate quads against the board's patterns.
 
@@ -62,6 +96,9 @@ def decode_quads(lin: np.ndarray, quads: np.ndarray, table: PatternTable, *,
         max_errors: most modules (of (bits + 2)^2) that may clearly disagree.
         ambiguity: cells closer than this share of the contrast to the threshold
             count neither as agreeing nor as disagreeing (at most 40 % may).
+        min_corr, corr_margin: a quad the threshold cannot read is still accepted
+            when its module means correlate with one pattern (at some blur level)
+            at least this well, and this much better than with any other id.
         grow_px: growth applied to each side first (outward for a dark border,
             inward for a light one), pixels.
 
@@ -111,6 +148,29 @@ def decode_quads(lin: np.ndarray, quads: np.ndarray, table: PatternTable, *,
     band = ambiguity * np.abs(quiet - border_level)
     white = vals > (thr + band)[:, None, None]  # (R, n, n)
     black = vals < (thr - band)[:, None, None]
+    # blur-aware reading: correlation of the module means with every pattern at a few
+    # blur levels (a lone cell under defocus never crosses a threshold, but it still
+    # correlates); accepted only with a clear margin over the best other id
+    best_corr: np.ndarray = np.full(R, -1.0)
+    second_corr: np.ndarray = np.full(R, -1.0)
+    corr_id: np.ndarray = np.zeros(R, dtype=np.int64)
+    corr_roll: np.ndarray = np.zeros(R, dtype=np.intp)
+    N = len(table.ids)
+    for roll in range(4):
+        v = np.rot90(vals, k=roll, axes=(1, 2)).reshape(R, n * n)
+        v = v - v.mean(axis=1, keepdims=True)
+        v = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
+        corr = (v.astype(np.float32) @ table.unit.T).reshape(R, N, table.levels).max(axis=2)
+        j = np.argmax(corr, axis=1)
+        cbest = corr[np.arange(R), j]
+        corr[np.arange(R), j] = -1.0
+        csecond = corr.max(axis=1)
+        better = cbest > best_corr
+        second_corr = np.where(better, np.maximum(best_corr, csecond),
+                               np.maximum(second_corr, cbest))
+        best_corr = np.where(better, cbest, best_corr)
+        corr_id = np.where(better, table.ids[j], corr_id)
+        corr_roll = np.where(better, roll, corr_roll)
     for roll in range(4):
         # rolling the corners by one turns the sampled pattern by a quarter
         pw = np.rot90(white, k=roll, axes=(1, 2)).reshape(R, n * n).astype(np.float32)
@@ -124,6 +184,10 @@ def decode_quads(lin: np.ndarray, quads: np.ndarray, table: PatternTable, *,
         best_roll = np.where(better, roll, best_roll)
     sure = (white | black).reshape(R, -1).mean(axis=1)
     ok = (best_err <= max_errors) & (sure >= 0.6)
+    by_corr = ~ok & (best_corr >= min_corr) & (best_corr - second_corr >= corr_margin)
+    best_id = np.where(by_corr, corr_id, best_id)
+    best_roll = np.where(by_corr, corr_roll, best_roll)
+    ok |= by_corr
     out = np.stack([np.roll(q[i], -int(best_roll[i]), axis=0) for i in np.flatnonzero(ok)]) \
         if ok.any() else np.zeros((0, 4, 2))
     return out, best_id[ok], np.flatnonzero(ok), best_err

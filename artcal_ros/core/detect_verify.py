@@ -95,15 +95,21 @@ def inner_border_cells(board: Board, ids: np.ndarray, rows: int = 2) -> np.ndarr
     return out
 
 
+def _blurred(printed: np.ndarray) -> np.ndarray:
+    from artcal_ros.core.detect_decode import blurred_patterns
+
+    return blurred_patterns(printed)
+
+
 def code_errors(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, ids: np.ndarray,
                 board: Board) -> np.ndarray:
     """(M,) int: modules (border and code) whose brightness disagrees with the id's pattern.
 
     Each module is read as the mean of 3 x 3 samples in its central half and
-    classified against the midpoint of the expected-white and expected-black
-    means; cells within a fifth of the contrast of that midpoint count as
-    neither. A quad whose expected classes are not separated, or with more than
-    40 % such cells, counts as all wrong.
+    compared with the id's pattern as it looks under a few levels of blur
+    (:func:`detect_decode.blurred_patterns`), scaled to the image by least
+    squares: a module more than half the contrast away from its prediction is
+    wrong. A quad whose contrast comes out inverted counts as all wrong.
     """
     M = len(ids)
     if M == 0:
@@ -117,20 +123,20 @@ def code_errors(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, ids: np.
     grid = np.stack([px.ravel(), py.ravel()], axis=1)  # (n*n*9, 2), module-major
     pts = apply_h(H, np.broadcast_to(grid, (M, *grid.shape)))
     vals = bilinear(lin, pts[..., 0], pts[..., 1]).reshape(M, n * n, 9).mean(axis=2)
-    expect_white = np.stack([board.marker_modules(int(i)).ravel() for i in ids])
-    nw = expect_white.sum(axis=1)
-    nb = n * n - nw
-    mean_w = (vals * expect_white).sum(axis=1) / np.maximum(nw, 1)
-    mean_b = (vals * ~expect_white).sum(axis=1) / np.maximum(nb, 1)
-    thr = 0.5 * (mean_w + mean_b)
-    # a cell within a fifth of the contrast of the threshold (a lone cell under
-    # blur) is not counted as wrong, but too many such cells is a failure
-    band = 0.2 * np.abs(mean_w - mean_b)
-    wrong = np.where(expect_white, vals < (thr - band)[:, None],
-                     vals > (thr + band)[:, None]).sum(axis=1)
-    unsure = (np.abs(vals - thr[:, None]) <= band[:, None]).mean(axis=1)
-    separated = (nw > 0) & (nb > 0) & (mean_w > mean_b) & (unsure <= 0.4)
-    errors = np.where(separated, wrong, n * n).astype(np.intp)
+    printed = np.stack([board.marker_modules(int(i)) for i in ids])
+    expected = _blurred(printed)  # (M, L, n*n), 1 = white
+    # fit vals ~ alpha + beta * expected per blur level; keep the best level
+    ec = expected - expected.mean(axis=2, keepdims=True)
+    vc = (vals - vals.mean(axis=1, keepdims=True))[:, None, :]
+    with np.errstate(all="ignore"):
+        beta = (ec * vc).sum(axis=2) / np.maximum((ec * ec).sum(axis=2), 1e-12)
+    resid = vc - beta[..., None] * ec
+    level = np.argmin((resid * resid).sum(axis=2), axis=1)
+    r = resid[np.arange(M), level]
+    b = beta[np.arange(M), level]
+    # a cell is wrong when it sits more than half the contrast from its prediction
+    wrong = (np.abs(r) > 0.5 * np.abs(b)[:, None]).sum(axis=1)
+    errors = np.where(b > 0, wrong, n * n).astype(np.intp)
     return errors
 
 
