@@ -558,9 +558,13 @@ def _far_cells(along: np.ndarray, same: np.ndarray, blur_modules: np.ndarray) ->
     w = np.maximum(blur_modules, 1e-3)
     far = np.zeros_like(along)
     extra = (1,) * (along.ndim - 1)
+    # CDF at each cell boundary once; cell i spans boundaries i+1 .. i+2
+    left = phi_cdf((along - 1.0) / w)
     for i in range(bits):
+        right = phi_cdf((along - (i + 2)) / w)
         other = (~same[:, i]).astype(np.float64).reshape(-1, *extra)
-        far += other * (phi_cdf((along - (i + 1)) / w) - phi_cdf((along - (i + 2)) / w))
+        far += other * (left - right)
+        left = right
     return far
 
 
