@@ -2,7 +2,7 @@
 
 Data and its licence: test/data/real/opencv-aruco-tutorial (SOURCE.txt). The measurements
 and their meaning are in bench/real_photos.py (``python -m bench.real_photos``) and
-docs/benchmarks.md; these tests hold what is robust in them.
+docs/real_photos.md; these tests hold what is robust in them.
 """
 
 from __future__ import annotations
