@@ -30,7 +30,7 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect_decode import PatternTable, decode_quads
 from artcal_ros.core.detect_edges import refine_quads
-from artcal_ros.core.detect_lens import DivisionLens, LensModel
+from artcal_ros.core.detect_lens import DivisionLens, LensModel, LensPool
 from artcal_ros.core.detect_verify import (
     border_is_dark,
     code_errors,
@@ -70,6 +70,8 @@ class DetectorConfig:
         code_rows: code rows behind the border modelled by the edge fit (1 or 2).
         decode_rejected: decode the quads OpenCV could not read against the
             board's own patterns (recovers markers under blur and clipping).
+        pool_lens: pool the lens estimate over the frames a :class:`Detector` sees
+            (one camera per detector; :meth:`Detector.reset_lens` forgets).
         adaptive_window_max: largest adaptive-threshold window of the quad finder.
     """
 
@@ -78,10 +80,11 @@ class DetectorConfig:
     refine_edges: bool = True
     margin_px: float = 1.5
     level_modules: float = 0.4
-    curve_min_px: float = 40.0
+    curve_min_px: float = 20.0
     estimate_lens: bool = True
     code_rows: int = 1
     decode_rejected: bool = True
+    pool_lens: bool = True
     max_bit_errors: int = 2
     max_bit_errors_isolated: int | None = 0
     neighbour_tolerance: float = 0.25
@@ -162,9 +165,14 @@ class Detector:
         self.config = config or DetectorConfig()
         self._aruco = _aruco_detector(board, self.config)
         self._patterns = PatternTable(board, any_polarity=board.polarity == "any")
+        self._lens_pool = LensPool()
         # quiet zone around a marker's border, in modules (mixed boards: half the gap)
         gap = board.marker_separation / board.module_length
         self._quiet_modules = 0.5 * gap if board.polarity == "mixed" else gap
+
+    def reset_lens(self) -> None:
+        """Forget the lens distortion learnt from earlier frames (a different camera)."""
+        self._lens_pool.reset()
 
     def detect(self, image: np.ndarray, camera: Any = None, *, source: str = "") -> Detections:
         """Detect the board's markers in one image.
@@ -213,8 +221,13 @@ class Detector:
                                lens=lens,
                                inner_same=inner_border_cells(self.board, ids,
                                                              rows=self.config.code_rows),
-                               quiet_modules=self._quiet_modules)
-            lens = fit.lens if fit.lens is not None else lens
+                               quiet_modules=self._quiet_modules,
+                               lens_pool=self._lens_pool if self.config.pool_lens else None)
+            # a lens estimated from this frame's edges bends the fitted sides; it moves
+            # the centres too only when it is well determined (a noisy one would add
+            # more error to them than the distortion it removes)
+            if isinstance(fit.lens, DivisionLens) and fit.lens.significance >= 2.0:
+                lens = fit.lens
             moved = np.abs(fit.corners_px - quads).max(axis=(1, 2))
             keep = fit.ok & (moved < 3.0)
             corners, sigma = fit.corners_px[keep], fit.corner_sigma_px[keep]

@@ -35,7 +35,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from artcal_ros.core.detect_lens import DivisionLens, LensModel
+from artcal_ros.core.detect_lens import DivisionLens, LensModel, LensPool
 from artcal_ros.core.detect_model import fit_step_model, phi_cdf
 
 _STEP = 0.25  # profile sample spacing, pixels
@@ -266,7 +266,7 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
                  lens: LensModel | DivisionLens | None = None,
                  inner_same: np.ndarray | None = None,
                  quiet_modules: float = 1.0, method: str = "model",
-                 max_profiles: int = 40) -> EdgeFit:
+                 max_profiles: int = 40, lens_pool: LensPool | None = None) -> EdgeFit:
     """Refine approximate quads to sub-pixel corners from their border edges.
 
     Args:
@@ -295,6 +295,8 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         method: ``model`` (blurred-step model fit, :mod:`detect_model`) or ``area``
             (the symmetric-area estimator of this module's docstring).
         max_profiles: most profiles per side (long sides are sampled sparser).
+        lens_pool: evidence about the lens from earlier frames of the same camera
+            (used and extended when the lens is estimated here).
         lens: optional lens model; the final edge points are then mapped to
             undistorted pixels, fitted with straight lines there, and the
             corners mapped back.
@@ -344,7 +346,7 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
                                  inner_same, quiet_modules, passes, order)
         valid = present
         if lens is None and allow_curvature:
-            used_lens = _estimate_division(model, quads, t, valid, lin.shape)
+            used_lens = _estimate_division(model, quads, t, valid, lin.shape, pool=lens_pool)
         if used_lens is not None:
             model.order = np.full(S, 3)
             model.coef[:, 2] = _lens_bend(used_lens, a, u, n, length)
@@ -706,16 +708,23 @@ def _side_curvature(lens: DivisionLens, pts: np.ndarray, quads: np.ndarray,
 
 
 def _estimate_division(model: _SideModel, quads: np.ndarray, t: np.ndarray,
-                       valid: np.ndarray, shape: tuple[int, ...]) -> DivisionLens | None:
+                       valid: np.ndarray, shape: tuple[int, ...], min_sigmas: float = 0.0,
+                       pool: LensPool | None = None) -> DivisionLens | None:
     """Plumb-line estimate of a division-model lens from all sides' curvature.
 
     The board's edges are straight, so whatever bends them all in a consistent
     radial way is lens distortion. The parabola term of every side is, to first
-    order, linear in the division parameter; a weighted least-squares solve
-    (two Gauss-Newton steps) gives the parameter. Returns None when it is not
-    significant (fewer or shorter sides, weak distortion).
+    order, linear in the division parameters; weighted least squares (three
+    Gauss-Newton steps, weak zero-mean priors that shrink poorly determined
+    parameters towards no distortion) gives them. Returns None without enough
+    curved sides, or when the r^2 term is below ``min_sigmas`` standard deviations.
+    With a ``pool``, earlier frames' evidence joins the fit and this frame's is added.
     """
-    if not (model.order >= 3).any():
+    if pool is not None and pool.shape != tuple(shape[:2]):
+        pool.reset(tuple(shape[:2]))
+    pooled_info = pool.info if pool is not None else np.zeros((2, 2))
+    pooled_rhs = pool.info_theta if pool is not None else np.zeros(2)
+    if not (model.order >= 3).any() and not pooled_info.any():
         return None
     h, w = shape[:2]
     centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
@@ -726,17 +735,37 @@ def _estimate_division(model: _SideModel, quads: np.ndarray, t: np.ndarray,
     use = (model.order >= 3) & (model.count >= 6)
     var = np.where(use, model.cov[:, 2, 2], np.inf) + 0.003**2
     weight = np.where(use, 1.0 / var, 0.0)
-    lam = 0.0
+    theta: np.ndarray = np.zeros(2)  # lam, lam2
     eps = 1e-3
-    info = 0.0
-    for _ in range(2):
-        c = _side_curvature(DivisionLens(lam, centre, scale), pts, quads, valid)
-        g = (_side_curvature(DivisionLens(lam + eps, centre, scale), pts, quads, valid) - c) / eps
-        ok = use & np.isfinite(c) & np.isfinite(g)
-        info = float((weight[ok] * g[ok] ** 2).sum())
-        if info <= 0:
+    # a weak prior keeps the r^4 term at zero unless the sides really ask for it
+    prior = np.diag([1.0 / 0.5**2, 1.0 / 0.3**2])
+    info: np.ndarray = np.zeros((2, 2))
+    own_info: np.ndarray = np.zeros((2, 2))
+    own_grad: np.ndarray = np.zeros(2)
+    for _ in range(3):
+        c = _side_curvature(DivisionLens(theta[0], centre, scale, theta[1]), pts, quads, valid)
+        G = np.stack([(_side_curvature(DivisionLens(theta[0] + eps * (k == 0), centre, scale,
+                                                    theta[1] + eps * (k == 1)),
+                                       pts, quads, valid) - c) / eps for k in range(2)], axis=1)
+        ok = use & np.isfinite(c) & np.isfinite(G).all(axis=1)
+        if ok.sum() < 4 and not pooled_info.any():
             return None
-        lam -= float((weight[ok] * g[ok] * c[ok]).sum()) / info
-    if not np.isfinite(lam) or abs(lam) < 3.0 / np.sqrt(info) or abs(lam) > 1.0:
+        Wg = G[ok] * weight[ok, None]
+        own_info = G[ok].T @ Wg
+        own_grad = Wg.T @ c[ok]
+        info = own_info + prior + pooled_info
+        rhs = own_grad + (prior + pooled_info) @ theta - pooled_rhs
+        try:
+            theta = theta - np.linalg.solve(info, rhs)
+        except np.linalg.LinAlgError:
+            return None
+    if pool is not None and np.isfinite(theta).all():
+        # this frame's own estimate, linearised at theta: own_info^-1 (own_info theta - grad)
+        pool.info = pool.info + own_info
+        pool.info_theta = pool.info_theta + own_info @ theta - own_grad
+    lam, lam2 = float(theta[0]), float(theta[1])
+    sd = float(np.sqrt(max(np.linalg.inv(info)[0, 0], 1e-30)))
+    if not np.isfinite(theta).all() or abs(lam) < min_sigmas * sd or abs(lam) > 1.0 \
+            or abs(lam2) > 1.0:
         return None
-    return DivisionLens(lam, centre, scale)
+    return DivisionLens(lam, centre, scale, lam2, abs(lam) / sd)

@@ -84,32 +84,66 @@ class LensModel:
 
 @dataclass(frozen=True)
 class DivisionLens:
-    """One-parameter division model, estimated from the image itself (plumb lines).
+    """Two-parameter division model, estimated from the image itself (plumb lines).
 
-    ``p_u = c + (p_d - c) / (1 + lam * |p_d - c|^2 / scale^2)`` maps image pixels
-    ``p_d`` to pixels where the board's straight edges are straight again.
+    ``p_u = c + (p_d - c) / (1 + lam * r^2 + lam2 * r^4)`` with
+    ``r = |p_d - c| / scale`` maps image pixels ``p_d`` to pixels where the
+    board's straight edges are straight again.
 
     Attributes:
-        lam: distortion parameter (negative: barrel), dimensionless.
+        lam: r^2 coefficient (negative: barrel), dimensionless.
         centre: (2,) distortion centre, pixels.
         scale: radius normalisation, pixels (the image's half diagonal).
+        lam2: r^4 coefficient.
+        significance: |lam| over its standard deviation when estimated.
     """
 
     lam: float
     centre: np.ndarray
     scale: float
+    lam2: float = 0.0
+    significance: float = float("inf")
+
+    def _factor(self, d: np.ndarray) -> np.ndarray:
+        r2 = (d * d).sum(axis=1, keepdims=True) / self.scale**2
+        return 1.0 + self.lam * r2 + self.lam2 * r2 * r2
 
     def undistort(self, pts_px: np.ndarray) -> np.ndarray:
         """(N, 2) image pixels -> (N, 2) straightened pixels."""
         d = np.asarray(pts_px, dtype=np.float64).reshape(-1, 2) - self.centre
-        r2 = (d * d).sum(axis=1, keepdims=True) / self.scale**2
-        return self.centre + d / (1.0 + self.lam * r2)
+        return self.centre + d / self._factor(d)
 
     def distort(self, pts_px: np.ndarray) -> np.ndarray:
         """(N, 2) straightened pixels -> (N, 2) image pixels (fixed-point inverse)."""
         du = np.asarray(pts_px, dtype=np.float64).reshape(-1, 2) - self.centre
         d = du.copy()
-        for _ in range(30):
-            r2 = (d * d).sum(axis=1, keepdims=True) / self.scale**2
-            d = du * (1.0 + self.lam * r2)
+        for _ in range(40):
+            d = du * self._factor(d)
         return self.centre + d
+
+
+class LensPool:
+    """Plumb-line evidence about the lens, pooled over the frames of one camera.
+
+    A single frame's few short sides determine the distortion only roughly; the
+    lens does not change between frames, so :class:`~artcal_ros.core.detect.Detector`
+    adds every frame's normal equations here and each new frame is fitted with
+    all of them. Reset it (``Detector.reset_lens()``) when the camera changes;
+    a change of image size resets it by itself.
+
+    Attributes:
+        info: (2, 2) summed information about (lam, lam2).
+        info_theta: (2,) summed information-weighted estimates.
+        shape: (height, width) of the images pooled so far.
+    """
+
+    def __init__(self) -> None:
+        self.info = np.zeros((2, 2))
+        self.info_theta = np.zeros(2)
+        self.shape: tuple[int, ...] = ()
+
+    def reset(self, shape: tuple[int, ...] = ()) -> None:
+        """Forget everything (and remember the new image size)."""
+        self.info = np.zeros((2, 2))
+        self.info_theta = np.zeros(2)
+        self.shape = shape
