@@ -80,12 +80,16 @@ def load_reference() -> dict[str, float]:
     return {"fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2], "rms": rms}
 
 
-def tutorial_detector() -> Detector:
-    """Our detector for loose DICT_6X6_250 markers (every id allowed, no neighbour check)."""
+def tutorial_detector(estimate_lens: bool = True) -> Detector:
+    """Our detector for loose DICT_6X6_250 markers (every id allowed, no neighbour check).
+
+    ``estimate_lens=False`` fits every side as a straight line (no plumb-line lens).
+    """
     # quiet zone: a ChArUco marker has 4 modules of white around it (square 2x marker)
     board = Board(cols=250, rows=1, marker_length=0.02, marker_separation=0.01,
                   dictionary_name="DICT_6X6_250", polarity="black")
-    return Detector(board, DetectorConfig(neighbour_tolerance=float("inf")))
+    return Detector(board, DetectorConfig(neighbour_tolerance=float("inf"),
+                                          estimate_lens=estimate_lens))
 
 
 def opencv_markers(image: np.ndarray, method: str = "default") -> Markers:
@@ -128,6 +132,7 @@ def detection_rows(detector: Detector) -> list[dict[str, Any]]:
     rows = []
     for gold_name, file in GOLD_PHOTOS.items():
         image = load_image(file)
+        detector.reset_lens()  # the photos come from different cameras
         t0 = time.perf_counter()
         ours = ours_markers(detector, image)
         seconds = time.perf_counter() - t0
@@ -223,8 +228,12 @@ def calibrate_saddles(images: list[np.ndarray], fix_bias: bool = True) -> dict[s
 
 
 def marker_sets(detector: Detector, images: list[np.ndarray]) -> dict[str, list[Markers]]:
-    """Marker corners of every calibration photo by each detector."""
+    """Marker corners of every calibration photo by each detector (ours pools its lens
+    estimate over the photos, as it does over a camera's frames)."""
+    detector.reset_lens()
     sets = {"artcal_ros": [ours_markers(detector, im) for im in images]}
+    straight = tutorial_detector(estimate_lens=False)
+    sets["artcal_ros, straight sides"] = [ours_markers(straight, im) for im in images]
     for method in OPENCV_METHODS:
         sets[f"OpenCV {method}"] = [opencv_markers(im, method) for im in images]
     return sets
