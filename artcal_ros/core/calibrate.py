@@ -456,7 +456,7 @@ def _warnings(sol: Solution, size: tuple[int, int], views: Sequence[ViewPoints],
     if np.isfinite(holdout) and holdout > 1.5 * rms + 0.05:
         out.append(f"hold-out error {holdout:.3f} px is much larger than the fit's {rms:.3f} "
                    "px: the views do not constrain the model well; add more varied views")
-    elif not np.isfinite(holdout) and len(views) >= 4:
+    elif np.isinf(holdout):
         out.append("cross-validation failed: some subsets of the views cannot be solved; "
                    "add more varied views")
     w, h = size
