@@ -229,7 +229,10 @@ class Detector:
             if isinstance(fit.lens, DivisionLens) and fit.lens.significance >= 2.0:
                 lens = fit.lens
             moved = np.abs(fit.corners_px - quads).max(axis=(1, 2))
-            keep = fit.ok & (moved < 3.0)
+            # the quad finder's polygon can be a few pixels off on large, bent markers;
+            # anything further than a tenth of the side is a different edge
+            side = np.linalg.norm(quads - np.roll(quads, -1, axis=1), axis=2).min(axis=1)
+            keep = fit.ok & (moved < np.maximum(3.0, 0.1 * side))
             corners, sigma = fit.corners_px[keep], fit.corner_sigma_px[keep]
             ids, dark = ids[keep], dark[keep]
         else:
@@ -277,7 +280,9 @@ class Detector:
                 dark = border_is_dark(lin, nq, self.board.bits)
                 fit = refine_quads(lin, nq, dark, self.board.bits, allow_curvature=False,
                                    passes=1)
-                good = fit.ok & (np.abs(fit.corners_px - nq).max(axis=(1, 2)) < 3.0)
+                nside = np.linalg.norm(nq - np.roll(nq, -1, axis=1), axis=2).min(axis=1)
+                good = fit.ok & (np.abs(fit.corners_px - nq).max(axis=(1, 2))
+                                 < np.maximum(3.0, 0.1 * nside))
                 rq2, rids2, _, _ = decode_quads(lin, fit.corners_px[good], self._patterns,
                                                 grow_px=0.0)
                 dq = np.concatenate([dq, rq2])
