@@ -1,0 +1,127 @@
+"""Levenberg-Marquardt bundle adjustment of intrinsics and poses, with point weights."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from artcal_ros.core.calibrate_model import (
+    DIST_NAMES,
+    INTRINSIC_NAMES,
+    ViewPoints,
+    estimate_pose,
+    project,
+    project_jacobian,
+)
+
+
+def point_weights(view: ViewPoints) -> np.ndarray:
+    """(M,) least-squares weight of each point: 1 / sigma^2, sigma floored at 0.01 px.
+
+    Points of unknown sigma get the view's median weight (1 where no sigma is known).
+    """
+    if view.sigma_px is None:
+        return np.ones(len(view))
+    sigma = np.maximum(np.asarray(view.sigma_px, dtype=np.float64), 0.01)
+    known = np.isfinite(sigma)
+    if not known.any():
+        return np.ones(len(view))
+    w = np.where(known, 1.0 / np.where(known, sigma, 1.0) ** 2, np.nan)
+    return np.where(known, w, float(np.median(w[known])))
+
+
+def bundle_adjust(views: list[ViewPoints], K0: np.ndarray, D0: np.ndarray, model: str,
+                   *, free: tuple[str, ...], weighted: bool = False,
+                   poses: tuple[np.ndarray, np.ndarray] | None = None,
+                   max_iterations: int = 100) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                                                       np.ndarray]:
+    """Levenberg-Marquardt over the free intrinsics and every view's pose.
+
+    Used for the equidistant model (OpenCV's fisheye calibration re-initialises the
+    poses at every iteration and fails outright when the distortion wanders) and to
+    weight points by their measured uncertainty (OpenCV's solvers cannot). Only steps
+    that lower the error are accepted. Poses are eliminated by a Schur complement, so a
+    step costs one small dense solve however many views there are.
+
+    Args:
+        free: names of the intrinsics to estimate (others stay at K0, D0).
+        weighted: weight each point by :func:`point_weights`.
+        poses: (rvecs (V, 3), tvecs (V, 3)) to start from; estimated if None.
+
+    Returns:
+        (K (3, 3), dist (n,), rvecs (V, 3), tvecs (V, 3)).
+    """
+    if poses is None:
+        est = [estimate_pose(v, K0, D0, model) for v in views]
+        x_ex = np.array([np.concatenate([r, t]) for r, t in est])
+    else:
+        x_ex = np.hstack([np.asarray(poses[0]), np.asarray(poses[1])]).astype(np.float64)
+    x_all = np.array([K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2], *D0], dtype=np.float64)
+    names = INTRINSIC_NAMES + DIST_NAMES[model][:len(D0)]
+    cols = np.array([names.index(n) for n in free if n in names])
+    x_in = x_all[cols]
+    sqrt_w = [np.repeat(np.sqrt(point_weights(v) if weighted else np.ones(len(v))), 2)
+              for v in views]
+
+    def unpack(xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        full = x_all.copy()
+        full[cols] = xi
+        K = np.array([[full[0], 0.0, full[2]], [0.0, full[1], full[3]], [0.0, 0.0, 1.0]])
+        return K, full[4:].copy()
+
+    def cost(xi: np.ndarray, xe: np.ndarray) -> float:
+        K, D = unpack(xi)
+        total = 0.0
+        for v, pose, sw in zip(views, xe, sqrt_w, strict=True):
+            r = (v.image_points - project(v.object_points, pose[:3], pose[3:], K, D,
+                                          model)).ravel() * sw
+            total += float(np.sum(r ** 2))
+        return total if np.isfinite(total) else np.inf
+
+    lam = 1e-3
+    current = cost(x_in, x_ex)
+    p = len(x_in)
+    for _ in range(max_iterations):
+        done = False
+        K, D = unpack(x_in)
+        U = np.zeros((p, p))
+        g = np.zeros(p)
+        blocks = []
+        for v, pose, sw in zip(views, x_ex, sqrt_w, strict=True):
+            A, B = project_jacobian(v.object_points, pose[:3], pose[3:], K, D, model)
+            A = A[:, cols] * sw[:, None]
+            B = B * sw[:, None]
+            r = (v.image_points - project(v.object_points, pose[:3], pose[3:], K, D,
+                                          model)).ravel() * sw
+            U += A.T @ A
+            g += A.T @ r
+            blocks.append((A.T @ B, B.T @ B, B.T @ r))
+        improved = False
+        while lam < 1e10:
+            S = U + lam * np.diag(np.diag(U))
+            rhs = g.copy()
+            inv_v = []
+            for W, V, gb in blocks:
+                Vi = np.linalg.inv(V + lam * np.diag(np.diag(V)))
+                inv_v.append(Vi)
+                S -= W @ Vi @ W.T
+                rhs -= W @ Vi @ gb
+            try:
+                d_in = np.linalg.solve(S, rhs)
+            except np.linalg.LinAlgError:
+                lam *= 10.0
+                continue
+            d_ex = np.array([Vi @ (gb - W.T @ d_in)
+                             for (W, _, gb), Vi in zip(blocks, inv_v, strict=True)])
+            trial = cost(x_in + d_in, x_ex + d_ex)
+            if trial < current:
+                x_in, x_ex = x_in + d_in, x_ex + d_ex
+                done = current - trial < 1e-12 * max(current, 1e-30)
+                current = trial
+                lam = max(lam / 3.0, 1e-9)
+                improved = True
+                break
+            lam *= 4.0
+        if not improved or done:
+            break
+    K, D = unpack(x_in)
+    return K, D, x_ex[:, :3].copy(), x_ex[:, 3:].copy()
