@@ -4,17 +4,26 @@ Pipeline for one image:
 
 1. Candidate quads and ids from OpenCV's ArUco detector (both polarities when the
    board has white-on-black markers), run on an 8-bit, contrast-stretched copy.
+   The quads it found but could not read are decoded again against the board's
+   own patterns, blur-aware (:mod:`artcal_ros.core.detect_decode`).
 2. Only ids on the configured board survive; duplicated ids are dropped.
 3. Each quad is refined from its border edges in linear intensity
-   (:mod:`artcal_ros.core.detect_edges`): sub-pixel lines fitted robustly to many
-   edge crossings per side, intersected into corners.
+   (:mod:`artcal_ros.core.detect_edges`, :mod:`artcal_ros.core.detect_model`):
+   a blurred-step model fitted to the raw pixels across every side, sides bent
+   by the lens (given, or estimated from the edges and pooled over frames),
+   intersected into corners.
 4. Verification (:mod:`artcal_ros.core.detect_verify`): the border's polarity
    must match the board, the code re-read on the refined quad must match the id
-   (few or no bit errors), and the marker must sit where its image neighbours
-   say it should on the board. A wrong id cannot reach the solver.
+   (at most 2 wrong cells; none for a marker without neighbours), and the marker
+   must sit where its image neighbours say it should on the board. A wrong id
+   cannot reach the solver.
 5. Centres: the intersection of the refined quad's diagonals (exact under a
-   pinhole projection). With a camera model the corners are mapped to
-   undistorted pixels first and the centre mapped back.
+   pinhole projection). With a lens (given, or estimated and well determined)
+   the corners are mapped to undistorted pixels first and the centre mapped
+   back; without one, the diagonals of the distorted quad are used, which is
+   off by second-order terms of the distortion across the marker (a few
+   hundredths of a pixel for 20 - 40 px markers near the corners of a strongly
+   distorted webcam image).
 
 Pixel convention: OpenCV's, the centre of the top-left pixel is (0, 0).
 """

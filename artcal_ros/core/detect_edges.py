@@ -1,26 +1,29 @@
 """Sub-pixel marker corners from fitted border edges (the ARTag way).
 
 Each side of a marker's outer border is a step edge between the border and the
-quiet zone around the marker. For every side we cut many short intensity
-profiles across the edge (skipping the ends near the corners), locate the edge
-in each profile to a fraction of a pixel, fit a line (or, for a long side bent
-by lens distortion, a parabola) robustly through those edge points, and
-intersect neighbouring sides to get the corners.
+quiet zone around the marker. For every side we take many short cuts across
+the edge (skipping the ends near the corners), locate the edge to a fraction of
+a pixel, fit a line (or a curve, where lens distortion bends the side) through
+it robustly, and intersect neighbouring sides to get the corners.
 
-Why the profiles are read in *linear* intensity: a pixel integrates light,
-and the gamma encoding comes afterwards. A blurred step is symmetric about the
-edge in linear light, not in gamma-encoded grey values, so a grey-level
-midpoint of the encoded image sits toward the dark side. The caller passes an
-already linearised image.
+Why the image is read in *linear* intensity: a pixel integrates light, and the
+gamma encoding comes afterwards. A blurred step is symmetric about the edge in
+linear light, not in gamma-encoded grey values, so a grey-level midpoint of the
+encoded image sits toward the dark side. The caller passes a linearised image.
 
-Edge location in a profile (the "symmetric area" estimator): with the profile
-centred on the current edge estimate, take the levels ``lo``/``hi`` at equal
-distances ``-r``/``+r`` and integrate the normalised profile
-``q = (I - lo) / (hi - lo)`` over ``[-r, r]``. For any symmetric blur the area
-is exactly ``r`` when the edge is at 0, and ``r - area`` is the edge offset
-otherwise (exact for a sharp step); two re-centred passes converge. It needs no
-asymptotic black/white levels, which a thin border band never reaches under
-blur, and it integrates the noise over the whole window.
+Two estimators:
+
+- ``model`` (the default, :mod:`artcal_ros.core.detect_model`): the raw pixels
+  of a band across each side are fitted with a blurred-step model (the pixel's
+  square footprint, a Gaussian blur per side, the code cells behind the border
+  from the decoded id). Sides are then, with a lens given or estimated from the
+  sides' curvature (plumb lines, pooled over frames by :class:`LensPool`), bent
+  exactly as the lens bends a straight edge.
+- ``area`` (kept for comparison; faster): bilinear profiles across the edge;
+  with the profile centred on the current estimate, the levels ``lo``/``hi`` at
+  ``-r``/``+r`` and the area of ``q = (I - lo) / (hi - lo)`` over ``[-r, r]``
+  give the offset ``r - area`` (exact for any symmetric blur when centred; a
+  measured gain corrects wide blur); a robust line fit follows.
 
 All arrays are batched over the S = 4 M sides of M markers; side k of a marker
 runs from its corner k to corner k+1 (TL->TR, TR->BR, BR->BL, BL->TL), so
