@@ -181,3 +181,15 @@ def test_cli_json_overlay_and_unreadable_file(tmp_path: Path, capsys) -> None:
     rc = artcal_main(["detect", str(bad), "--json", str(tmp_path / "x.json")])
     err = capsys.readouterr().err
     assert rc == 2 and "broken.png" in err and "Traceback" not in err
+
+
+def test_lens_models_round_trip() -> None:
+    from artcal_ros.core.detect_lens import DivisionLens, LensModel
+
+    pts = np.random.default_rng(3).uniform([0, 0], [640, 480], (50, 2))
+    for lens in (LensModel.from_any(CAM), DivisionLens(-0.2, np.array([320.0, 240.0]), 400.0,
+                                                       0.03)):
+        back = lens.distort(lens.undistort(pts))
+        assert np.abs(back - pts).max() < 1e-6
+    with pytest.raises(DetectionError, match="camera"):
+        LensModel.from_any(object())
