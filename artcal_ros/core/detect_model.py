@@ -25,23 +25,36 @@ import warnings
 
 import numpy as np
 
-_SQRT2 = np.sqrt(2.0)
-_INV_SQRT2PI = 1.0 / np.sqrt(2.0 * np.pi)
+_INV_SQRT2 = float(1.0 / np.sqrt(2.0))  # Python floats keep float32 arrays float32
+_INV_SQRT2PI = float(1.0 / np.sqrt(2.0 * np.pi))
 
 
 def norm_cdf_pdf(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Standard normal CDF and density of z, sharing one exponential.
 
     The CDF uses Abramowitz & Stegun 7.1.26 for erf (absolute error < 1.5e-7).
+    The dtype of z is kept (float32 halves the time of the model fit); the work
+    is done in place to keep temporaries few.
     """
-    a = np.abs(z) * (1.0 / _SQRT2)
-    e = np.exp(-a * a)
-    t = 1.0 / (1.0 + 0.3275911 * a)
-    poly = t * (0.254829592 + t * (-0.284496736 + t * (1.421413741
-                                                      + t * (-1.453152027 + t * 1.061405429))))
-    half_tail = 0.5 * poly * e  # Phi(-|z|)
-    cdf = np.where(z >= 0, 1.0 - half_tail, half_tail)
-    return cdf, _INV_SQRT2PI * e
+    z = np.asarray(z)
+    a = np.abs(z)
+    a *= _INV_SQRT2
+    e = a * a
+    np.negative(e, out=e)
+    np.exp(e, out=e)
+    t = a  # a is not needed any more
+    t *= 0.3275911
+    t += 1.0
+    np.reciprocal(t, out=t)
+    poly = t * 1.061405429
+    for coef in (-1.453152027, 1.421413741, -0.284496736, 0.254829592):
+        poly += coef
+        poly *= t
+    poly *= 0.5
+    poly *= e  # Phi(-|z|)
+    cdf = np.where(z >= 0, 1.0 - poly, poly)
+    e *= _INV_SQRT2PI
+    return cdf, e
 
 
 def phi_cdf(z: np.ndarray) -> np.ndarray:
@@ -64,26 +77,48 @@ def pixel_esf(d: np.ndarray, sigma: np.ndarray, box_a: np.ndarray, box_b: np.nda
         box_a, box_b: |nx|, |ny| (broadcast with d).
 
     Returns:
-        value (0..1), d value / d d, d value / d log sigma.
+        value (0..1), d value / d d, d value / d log sigma (in d's float type).
     """
     a = np.maximum(box_a, 0.02)
     b = np.maximum(box_b, 0.02)
-    corners = ((0.5 * (a + b), 1.0), (0.5 * (a - b), -1.0), (-0.5 * (a - b), -1.0),
-               (-0.5 * (a + b), 1.0))
-    val = np.zeros(np.broadcast(d, sigma, a, b).shape)
-    dval = np.zeros_like(val)
-    dsig = np.zeros_like(val)
-    for shift, sgn in corners:
-        c = d + shift
-        z = c / sigma
+    inv_sigma = 1.0 / sigma
+    # sums over the box's four corners of sgn * P2(z), sgn * P1(z) and sgn * z P1(z),
+    # with P1 the antiderivative of Phi and P2 its antiderivative
+    s2 = s1 = sz1 = None
+    for shift, sgn in ((0.5 * (a + b), 1.0), (0.5 * (a - b), -1.0), (-0.5 * (a - b), -1.0),
+                       (-0.5 * (a + b), 1.0)):
+        z = d + shift
+        z *= inv_sigma
         cdf, pdf = norm_cdf_pdf(z)
-        p1 = z * cdf + pdf  # antiderivative of Phi
-        p2 = 0.5 * ((z * z + 1.0) * cdf + z * pdf)  # and its antiderivative
-        val += sgn * sigma * sigma * p2
-        dval += sgn * sigma * p1
-        dsig += sgn * (2.0 * sigma * sigma * p2 - sigma * c * p1)
+        p1 = z * cdf
+        p1 += pdf
+        p2 = z * z
+        p2 += 1.0
+        p2 *= cdf
+        pdf *= z
+        p2 += pdf
+        p2 *= 0.5
+        zp1 = z * p1
+        if s2 is None:
+            s2, s1, sz1 = p2, p1, zp1
+        elif sgn > 0:
+            s2 += p2
+            s1 += p1
+            sz1 += zp1
+        else:
+            s2 -= p2
+            s1 -= p1
+            sz1 -= zp1
+    assert s2 is not None and s1 is not None and sz1 is not None
     inv = 1.0 / (a * b)
-    return val * inv, dval * inv, dsig * inv
+    sig2 = sigma * sigma * inv
+    val = s2 * sig2
+    # d/d log sigma of sigma^2 P2(c / sigma): 2 sigma^2 P2 - sigma c P1 = sigma^2 (2 P2 - z P1)
+    s2 *= 2.0
+    s2 -= sz1
+    s2 *= sig2
+    s1 *= sigma * inv
+    return val, s1, s2
 
 
 def fit_step_model(values: np.ndarray, s: np.ndarray, mask: np.ndarray, basis: np.ndarray,
@@ -113,60 +148,88 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, mask: np.ndarray, basis: n
         residual rms (S,) linear units, profiles used (S,).
     """
     S = values.shape[0]
-    m = mask.astype(np.float64)
+    rows = far.shape[3]
+    # only the masked samples are evaluated: they are gathered side by side (C order
+    # keeps each side's samples together) and scattered into a padded (S, P) layout
+    # just for the per-side normal equations
+    flat_mask = mask.reshape(S, -1)
+    sid = np.nonzero(flat_mask)[0]
+    per_side = flat_mask.sum(axis=1)
+    first = np.concatenate([[0], np.cumsum(per_side)[:-1]])
+    slot = np.arange(len(sid)) - first[sid]
+    P = max(int(per_side.max()), 1)
+    vals = values[mask].astype(np.float64)
+    sc = s[mask].astype(np.float64)
+    bas = basis[mask].astype(np.float64)  # (N, 3)
+    farc = far[mask].astype(np.float32)  # (N, R)
+    modc = module_px[mask].astype(np.float32)
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # sides without samples: NaN
-        rel = s - np.einsum("skjp,sp->skj", basis, coef0)
-        A = np.nanmedian(np.where(mask & (rel < -0.3), values, np.nan).reshape(S, -1), axis=1)
-        B = np.nanmedian(np.where(mask & (rel > 0.3), values, np.nan).reshape(S, -1), axis=1)
+        rel = sc - np.einsum("np,np->n", bas, coef0[sid])
+        A = _side_median(vals, rel < -0.3, sid, slot, S, P)
+        B = _side_median(vals, rel > 0.3, sid, slot, S, P)
     p = np.zeros((S, 6))  # edge polynomial (3), A, D, log w
     p[:, :3] = coef0
     p[:, 3] = np.nan_to_num(A)
     p[:, 4] = np.nan_to_num(B) - np.nan_to_num(A)
     p[:, 5] = np.log(0.6)
-    box_a = np.abs(normal[:, 0])[:, None, None]
-    box_b = np.abs(normal[:, 1])[:, None, None]
+    box_a = np.abs(normal[:, 0])[sid].astype(np.float32)
+    box_b = np.abs(normal[:, 1])[sid].astype(np.float32)
+    box_var = (box_a * box_a + box_b * box_b) / 12.0
     lam = np.full(S, 1e-3)
     quad = (fit_order >= 3).astype(np.float64)
-    rows = far.shape[3]
+    quad_c = quad[sid]
 
     def evaluate(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        e = np.einsum("skjp,sp->skj", basis, p[:, :3])
-        w = np.maximum(np.exp(p[:, 5]), 0.03)[:, None, None]
-        F, g1, gw = pixel_esf(s - e, w, box_a, box_b)
+        ps = p[sid]
+        e = np.einsum("np,np->n", bas, ps[:, :3])
+        # the model is evaluated in float32 (its noise is far below the image's);
+        # the edge offset d is formed in float64 first so it keeps its precision
+        w = np.maximum(np.exp(ps[:, 5]), 0.03).astype(np.float32)
+        d = (sc - e).astype(np.float32)
+        F, g1, gw = pixel_esf(d, w, box_a, box_b)
         de = -g1
+        if rows:
+            # a Gaussian of the same second moment is close enough for this correction
+            w_eff = np.sqrt(w * w + box_var)
+            shrink = (w * w) / (w_eff * w_eff)
         for r in range(rows):
             # the edge where code row r+1 begins, weighted by its change of colour
-            c = far[..., r] - (far[..., r - 1] if r else 0.0)
-            # a Gaussian of the same second moment is close enough for this correction
-            w_eff = np.sqrt(w * w + (box_a * box_a + box_b * box_b) / 12.0)
-            z = -(s - e + (r + 1) * module_px) / w_eff
+            c = farc[:, r] - (farc[:, r - 1] if r else 0.0)
+            z = -(d + (r + 1) * modc) / w_eff
             val, pdf = norm_cdf_pdf(z)
-            dv = pdf / w_eff
-            dw = -pdf * z * (w * w) / (w_eff * w_eff)
             F = F + c * val
-            de = de + c * dv
-            gw = gw + c * dw
-        D = p[:, 4, None, None]
-        res = (values - (p[:, 3, None, None] + D * F)) * m
-        de = D * de * m
-        jac = np.empty((*values.shape, 6))
-        jac[..., 0] = de * basis[..., 0]
-        jac[..., 1] = de * basis[..., 1]
-        jac[..., 2] = de * basis[..., 2] * quad[:, None, None]
-        jac[..., 3] = m
-        jac[..., 4] = F * m
-        jac[..., 5] = D * gw * m  # d/d log w
+            de = de + c * (pdf / w_eff)
+            gw = gw - c * (pdf * z * shrink)
+        D = ps[:, 4].astype(np.float32)
+        res = vals - (ps[:, 3] + D * F)
+        de = D * de
+        jac = np.empty((len(sid), 6), dtype=np.float32)
+        jac[:, :3] = de[:, None] * bas
+        jac[:, 2] *= quad_c
+        jac[:, 3] = 1.0
+        jac[:, 4] = F
+        jac[:, 5] = D * gw  # d/d log w
         return res, jac
 
+    def padded(jac: np.ndarray, res: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        Jp = np.zeros((S, P, 6))
+        Jp[sid, slot] = jac
+        rp = np.zeros((S, P))
+        rp[sid, slot] = res
+        return Jp, rp
+
+    def side_cost(res: np.ndarray) -> np.ndarray:
+        return np.bincount(sid, weights=res * res, minlength=S)
+
     res, jac = evaluate(p)
-    cost = (res * res).sum(axis=(1, 2))
+    cost = side_cost(res)
     pad = np.zeros((S, 6, 6))
     pad[:, 2, 2] = 1.0 - quad
     for _ in range(iterations):
-        Jf = jac.reshape(S, -1, 6)
+        Jf, rf = padded(jac, res)
         N = np.matmul(Jf.transpose(0, 2, 1), Jf) + pad
-        g = np.matmul(Jf.transpose(0, 2, 1), res.reshape(S, -1, 1))[..., 0]
+        g = np.matmul(Jf.transpose(0, 2, 1), rf[..., None])[..., 0]
         diag = np.einsum("sii->si", N)
         Nd = N + (lam[:, None] * (diag + 1e-9))[:, :, None] * np.eye(6)
         with np.errstate(all="ignore"):
@@ -176,16 +239,17 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, mask: np.ndarray, basis: n
         step[:, 5] = np.clip(step[:, 5], -0.5, 0.5)
         trial = p + step
         res_t, jac_t = evaluate(trial)
-        cost_t = (res_t * res_t).sum(axis=(1, 2))
+        cost_t = side_cost(res_t)
         better = cost_t < cost
         p = np.where(better[:, None], trial, p)
-        res = np.where(better[:, None, None], res_t, res)
-        jac = np.where(better[:, None, None, None], jac_t, jac)
+        bs = better[sid]
+        res = np.where(bs, res_t, res)
+        jac = np.where(bs[:, None], jac_t, jac)
         cost = np.where(better, cost_t, cost)
         lam = np.where(better, lam * 0.3, lam * 10.0)
-    Jf = jac.reshape(S, -1, 6)
+    Jf, _ = padded(jac, res)
     N = np.matmul(Jf.transpose(0, 2, 1), Jf) + pad + 1e-12 * np.eye(6)
-    n_samples = m.sum(axis=(1, 2))
+    n_samples = per_side.astype(np.float64)
     var = cost / np.maximum(n_samples - 6, 1.0)
     with np.errstate(all="ignore"):
         cov = np.linalg.inv(N)[:, :3, :3] * (var * max(samples_per_px, 1.0))[:, None, None]
@@ -194,3 +258,19 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, mask: np.ndarray, basis: n
     cov[fit_order < 3, :, 2] = 0.0
     return (p[:, :3], cov, np.exp(p[:, 5]), np.sqrt(var),
             mask.any(axis=2).sum(axis=1).astype(np.intp))
+
+
+def _side_median(x: np.ndarray, use: np.ndarray, sid: np.ndarray, slot: np.ndarray,
+                 S: int, P: int) -> np.ndarray:
+    """(S,) median of the samples x (N,) of each side where ``use`` (N,); NaN for none.
+
+    Like ``np.nanmedian`` of a padded (S, P) layout (the mean of the two middle
+    values for an even count), without its masked-array overhead.
+    """
+    pad = np.full((S, P), np.inf)
+    pad[sid[use], slot[use]] = x[use]
+    pad.sort(axis=1)
+    count = np.bincount(sid[use], minlength=S)
+    lo = np.take_along_axis(pad, np.maximum((count - 1) // 2, 0)[:, None], 1)[:, 0]
+    hi = np.take_along_axis(pad, np.minimum(count // 2, P - 1)[:, None], 1)[:, 0]
+    return np.where(count > 0, 0.5 * (lo + hi), np.nan)
