@@ -32,14 +32,13 @@ corner k is the intersection of sides k-1 and k.
 
 from __future__ import annotations
 
-import warnings
 from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
 
 from artcal_ros.core.detect_lens import DivisionLens, LensModel, LensPool
-from artcal_ros.core.detect_model import fit_step_model, phi_cdf
+from artcal_ros.core.detect_model import fit_step_model, phi_cdf, side_median, side_slots
 
 _STEP = 0.25  # profile sample spacing, pixels
 
@@ -128,6 +127,12 @@ class _SideModel:
         """(S, K, 3) design matrix at along-side positions t (S, K)."""
         tau = 2.0 * t / self.length[:, None] - 1.0
         quad = np.where(self.order[:, None] >= 3, tau * tau - 1.0 / 3.0, 0.0)
+        return np.stack([np.ones_like(tau), tau, quad], axis=-1)
+
+    def basis_at(self, t: np.ndarray, side: np.ndarray) -> np.ndarray:
+        """(N, 3) design matrix at along-side positions t (N,) of the given sides (N,)."""
+        tau = 2.0 * t / self.length[side] - 1.0
+        quad = np.where(self.order[side] >= 3, tau * tau - 1.0 / 3.0, 0.0)
         return np.stack([np.ones_like(tau), tau, quad], axis=-1)
 
     def offset(self, t: np.ndarray) -> np.ndarray:
@@ -450,10 +455,10 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         s0 = model.offset(t)
         base = a[:, None, :] + t[..., None] * u[:, None, :] + s0[..., None] * n[:, None, :]
         _, m_px = _module_geometry(corners, base, n, bits)
-        m_side = np.where(present, m_px, np.nan)
-        with np.errstate(all="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)
-            m_med = np.nan_to_num(np.nanmedian(m_side, axis=1), nan=1.0)
+        psid = np.nonzero(present)[0]
+        pslot, pP = side_slots(psid, S)
+        m_med = np.nan_to_num(side_median(m_px[present], np.ones(len(psid), bool), psid,
+                                          pslot, S, pP), nan=1.0)
         rows = 0 if inner_same is None else int(np.shape(inner_same)[2])
         if rows == 0:
             inner = np.clip(m_med - 1.0, 1.0, 5.0)
@@ -468,37 +473,38 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         h, w = lin.shape
         px = np.clip(np.rint(pts[..., 0]), 0, w - 1)
         py = np.clip(np.rint(pts[..., 1]), 0, h - 1)
-        values = lin[py.astype(np.intp), px.astype(np.intp)].astype(np.float64)
         rel_x = px - a[:, None, None, 0]
         rel_y = py - a[:, None, None, 1]
         t_s = rel_x * u[:, None, None, 0] + rel_y * u[:, None, None, 1]
         s_s = rel_x * n[:, None, None, 0] + rel_y * n[:, None, None, 1]
-        basis = model.basis(t_s.reshape(S, -1)).reshape(*t_s.shape, 3)
-        e_s = np.einsum("skjp,sp->skj", basis, model.coef)
+        e_s = model.offset(t_s.reshape(S, -1)).reshape(t_s.shape)
         mask = (present[..., None] & (s_s - e_s >= -inner[:, None, None])
                 & (s_s - e_s <= outer[:, None, None]))
-        along_s, m_s = _module_geometry(
-            corners, np.stack([px, py], axis=-1).reshape(S, -1, 2), n, bits)
-        along_s = along_s.reshape(t_s.shape)
-        m_s = m_s.reshape(t_s.shape)
+        # from here on only the samples used, flat and grouped by side
+        sid = np.nonzero(mask)[0]
+        px_c, py_c, t_c, s_c = px[mask], py[mask], t_s[mask], s_s[mask]
+        values = lin[py_c.astype(np.intp), px_c.astype(np.intp)].astype(np.float64)
+        basis = model.basis_at(t_c, sid)
+        along, m_s = _module_geometry_at(corners, np.stack([px_c, py_c], axis=-1), sid, n, bits)
         if rows:
-            module_along = (model.length / (bits + 2))[:, None, None]
-            same = np.asarray(inner_same, bool).reshape(S, rows, bits)
-            far = np.stack([_far_cells(along_s, same[:, r], blur[:, None, None] / module_along)
+            blur_modules = (blur * (bits + 2) / model.length)[sid]
+            same = np.asarray(inner_same, bool).reshape(S, rows, bits)[sid]
+            far = np.stack([_far_cells(along.astype(np.float32), same[:, r],
+                                       blur_modules.astype(np.float32))
                             for r in range(rows)], axis=-1)
         else:
-            far = np.zeros((*t_s.shape, 1))
-        coef, cov, blur, rms, count = fit_step_model(
-            values, s_s, mask, basis, model.coef, far, m_s, fit_order, n)
+            far = np.zeros((len(sid), 1), dtype=np.float32)
+        coef, cov, blur, rms = fit_step_model(
+            values, s_c, sid, S, basis, model.coef, far, m_s, fit_order, n)
         model.coef = coef
         model.cov = cov
         model.rms = rms
-        model.count = count
-        rel = s_s - np.einsum("skjp,sp->skj", basis, coef)
-        with np.errstate(all="ignore"), warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # sides without samples: NaN
-            hi = np.nanmedian(np.where(mask & (rel > 0.7), values, np.nan).reshape(S, -1), 1)
-            lo = np.nanmedian(np.where(mask & (rel < -0.7), values, np.nan).reshape(S, -1), 1)
+        model.count = mask.any(axis=2).sum(axis=1).astype(np.intp)
+        rel = s_c - np.einsum("np,np->n", basis, coef[sid])
+        slot, P = side_slots(sid, S)
+        with np.errstate(all="ignore"):
+            hi = side_median(values, rel > 0.7, sid, slot, S, P)
+            lo = side_median(values, rel < -0.7, sid, slot, S, P)
         contrast = np.abs(np.nan_to_num(hi - lo))
     return contrast
 
@@ -545,6 +551,32 @@ def _module_geometry(corners: np.ndarray, base: np.ndarray, n: np.ndarray,
     along = np.where((side % 2 == 0)[:, None], mod[..., 0], mod[..., 1])
     along = np.where((side >= 2)[:, None], size - along, along)  # in side direction
     return along, np.clip(m_px, 0.5, None)
+
+
+def _module_geometry_at(corners: np.ndarray, pts: np.ndarray, side: np.ndarray,
+                        n: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_module_geometry` for flat points: pts (N, 2) of sides ``side`` (N,)."""
+    M = len(corners)
+    size = bits + 2.0
+    square = np.array([[0.0, 0.0], [size, 0.0], [size, size], [0.0, size]])
+    H = _homographies(np.broadcast_to(square, (M, 4, 2)), corners)
+    marker = side // 4
+    mod = _apply_each(np.linalg.inv(H)[marker], pts)
+    inward = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
+    k = side % 4
+    inner = _apply_each(H[marker], mod + inward[k])
+    m_px = np.einsum("nd,nd->n", pts - inner, n[side])
+    along = np.where(k % 2 == 0, mod[:, 0], mod[:, 1])
+    along = np.where(k >= 2, size - along, along)  # in side direction
+    return along, np.clip(m_px, 0.5, None)
+
+
+def _apply_each(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Apply one homography (N, 3, 3) to each point (N, 2)."""
+    x, y = pts[:, 0], pts[:, 1]
+    q = H[:, :, 0] * x[:, None] + H[:, :, 1] * y[:, None] + H[:, :, 2]
+    with np.errstate(all="ignore"):
+        return q[:, :2] / q[:, 2:3]
 
 
 def _far_cells(along: np.ndarray, same: np.ndarray, blur_modules: np.ndarray) -> np.ndarray:

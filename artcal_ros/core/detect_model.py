@@ -121,21 +121,25 @@ def pixel_esf(d: np.ndarray, sigma: np.ndarray, box_a: np.ndarray, box_b: np.nda
     return val, s1, s2
 
 
-def fit_step_model(values: np.ndarray, s: np.ndarray, mask: np.ndarray, basis: np.ndarray,
-                   coef0: np.ndarray, far: np.ndarray, module_px: np.ndarray,
-                   fit_order: np.ndarray, normal: np.ndarray, *, samples_per_px: float = 1.0,
-                   iterations: int = 4
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides: int,
+                   basis: np.ndarray, coef0: np.ndarray, far: np.ndarray,
+                   module_px: np.ndarray, fit_order: np.ndarray, normal: np.ndarray, *,
+                   samples_per_px: float = 1.0, iterations: int = 4
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Fit the blurred-step model (module docstring) to every side.
 
+    The N samples of all S sides come as flat arrays, each side's samples together
+    (``side`` non-decreasing); only the samples to use are passed.
+
     Args:
-        values: (S, K, J) linear intensities of the samples of each side.
-        s: (S, K, J) their offsets along the side's outward normal from its chord, pixels.
-        mask: (S, K, J) bool, samples to use.
-        basis: (S, K, J, 3) along-side polynomial basis (1, tau, tau^2 - 1/3) at each sample.
+        values: (N,) linear intensities of the samples.
+        s: (N,) their offsets along their side's outward normal from its chord, pixels.
+        side: (N,) int, the side (0 .. S-1) of each sample, non-decreasing.
+        n_sides: S.
+        basis: (N, 3) along-side polynomial basis (1, tau, tau^2 - 1/3) at each sample.
         coef0: (S, 3) starting edge polynomial (offset of the edge from the chord).
-        far: (S, K, J, R) share of the other colour in code rows 1..R behind the border.
-        module_px: (S, K, J) module width at each sample, pixels.
+        far: (N, R) share of the other colour in code rows 1..R behind the border.
+        module_px: (N,) module width at each sample, pixels.
         fit_order: (S,) 3 where the parabola term is free, 2 where it is held.
         normal: (S, 2) each side's unit normal (sets the pixel's footprint across it).
         samples_per_px: sample density along the normal (for the covariance: samples
@@ -144,31 +148,26 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, mask: np.ndarray, basis: n
 
     Returns:
         coef (S, 3) edge polynomial, cov (S, 3, 3) its covariance, blur (S,) pixels
-        (the Gaussian part, beyond the pixel's own footprint),
-        residual rms (S,) linear units, profiles used (S,).
+        (the Gaussian part, beyond the pixel's own footprint), residual rms (S,)
+        linear units.
     """
-    S = values.shape[0]
-    rows = far.shape[3]
-    # only the masked samples are evaluated: they are gathered side by side (C order
-    # keeps each side's samples together) and scattered into a padded (S, P) layout
-    # just for the per-side normal equations
-    flat_mask = mask.reshape(S, -1)
-    sid = np.nonzero(flat_mask)[0]
-    per_side = flat_mask.sum(axis=1)
-    first = np.concatenate([[0], np.cumsum(per_side)[:-1]])
-    slot = np.arange(len(sid)) - first[sid]
-    P = max(int(per_side.max()), 1)
-    vals = values[mask].astype(np.float64)
-    sc = s[mask].astype(np.float64)
-    bas = basis[mask].astype(np.float64)  # (N, 3)
-    farc = far[mask].astype(np.float32)  # (N, R)
-    modc = module_px[mask].astype(np.float32)
+    S = n_sides
+    rows = far.shape[1]
+    sid = np.asarray(side, dtype=np.intp)
+    # the normal equations are formed per side in a padded (S, P) layout
+    slot, P = side_slots(sid, S)
+    per_side = np.bincount(sid, minlength=S)
+    vals = np.asarray(values, dtype=np.float64)
+    sc = np.asarray(s, dtype=np.float64)
+    bas = np.asarray(basis, dtype=np.float64)
+    farc = np.asarray(far, dtype=np.float32)
+    modc = np.asarray(module_px, dtype=np.float32)
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # sides without samples: NaN
         rel = sc - np.einsum("np,np->n", bas, coef0[sid])
-        A = _side_median(vals, rel < -0.3, sid, slot, S, P)
-        B = _side_median(vals, rel > 0.3, sid, slot, S, P)
-    p = np.zeros((S, 6))  # edge polynomial (3), A, D, log w
+        A = side_median(vals, rel < -0.3, sid, slot, S, P)
+        B = side_median(vals, rel > 0.3, sid, slot, S, P)
+    p: np.ndarray = np.zeros((S, 6))  # edge polynomial (3), A, D, log w
     p[:, :3] = coef0
     p[:, 3] = np.nan_to_num(A)
     p[:, 4] = np.nan_to_num(B) - np.nan_to_num(A)
@@ -176,7 +175,7 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, mask: np.ndarray, basis: n
     box_a = np.abs(normal[:, 0])[sid].astype(np.float32)
     box_b = np.abs(normal[:, 1])[sid].astype(np.float32)
     box_var = (box_a * box_a + box_b * box_b) / 12.0
-    lam = np.full(S, 1e-3)
+    lam: np.ndarray = np.full(S, 1e-3)
     quad = (fit_order >= 3).astype(np.float64)
     quad_c = quad[sid]
 
@@ -256,13 +255,26 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, mask: np.ndarray, basis: n
     cov = np.nan_to_num(cov)
     cov[fit_order < 3, 2, :] = 0.0
     cov[fit_order < 3, :, 2] = 0.0
-    return (p[:, :3], cov, np.exp(p[:, 5]), np.sqrt(var),
-            mask.any(axis=2).sum(axis=1).astype(np.intp))
+    return p[:, :3], cov, np.exp(p[:, 5]), np.sqrt(var)
 
 
-def _side_median(x: np.ndarray, use: np.ndarray, sid: np.ndarray, slot: np.ndarray,
-                 S: int, P: int) -> np.ndarray:
+def side_slots(side: np.ndarray, n_sides: int) -> tuple[np.ndarray, int]:
+    """Position of every sample within its side, and the most samples of any side.
+
+    Args:
+        side: (N,) int, non-decreasing side index of each sample.
+        n_sides: S.
+    """
+    count = np.bincount(side, minlength=n_sides)
+    first = np.concatenate([[0], np.cumsum(count)[:-1]])
+    return np.arange(len(side)) - first[side], max(int(count.max(initial=0)), 1)
+
+
+def side_median(x: np.ndarray, use: np.ndarray, sid: np.ndarray, slot: np.ndarray,
+                S: int, P: int) -> np.ndarray:
     """(S,) median of the samples x (N,) of each side where ``use`` (N,); NaN for none.
+
+    ``sid``, ``slot`` and ``P`` as from :func:`side_slots`.
 
     Like ``np.nanmedian`` of a padded (S, P) layout (the mean of the two middle
     values for an even count), without its masked-array overhead.
