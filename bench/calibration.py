@@ -1,7 +1,9 @@
 """Calibration benchmarks against renderer truth.
 
-    python -m bench.calibration            # everything (about 15 minutes on 2 cores)
-    python -m bench.calibration --quick    # accuracy tables only, fewer cameras
+    python -m bench.calibration --sections 1,2   # accuracy and uncertainty (~3 minutes)
+    python -m bench.calibration                  # + the 2,000-frame bag (~45 minutes the
+                                                 # first time; detections are cached)
+    python -m bench.calibration --quick          # webcam and hd only, no bag
 
 Sections (all on freshly rendered images, fixed seeds, compared in the same run):
 
