@@ -211,12 +211,14 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
         jac[:, 5] = D * gw  # d/d log w
         return res, jac
 
+    flat_index = sid * P + slot
+
     def padded(jac: np.ndarray, res: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        Jp = np.zeros((S, P, 6))
-        Jp[sid, slot] = jac
-        rp = np.zeros((S, P))
-        rp[sid, slot] = res
-        return Jp, rp
+        Jp = np.zeros((S * P, 6))
+        Jp[flat_index] = jac
+        rp = np.zeros(S * P)
+        rp[flat_index] = res
+        return Jp.reshape(S, P, 6), rp.reshape(S, P)
 
     def side_cost(res: np.ndarray) -> np.ndarray:
         return np.bincount(sid, weights=res * res, minlength=S)
