@@ -290,7 +290,7 @@ def _layout_check(views: list[ViewPoints], board: Board, dropped: list[DroppedVi
 
 
 def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tuple[int, int],
-              model: str = "plumb_bob", points: str = "centers", max_views: int = 40,
+              model: str = "plumb_bob", points: str = "corners", max_views: int = 40,
               k3: bool = False, cross_validation_folds: int = 5, weighted: bool = True,
               progress: Callable[[str], None] | None = None) -> CalibrationResult:
     """Calibrate a camera from the markers found in several images.

@@ -55,7 +55,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("board.polarity", "black",
               "black: black border on white; white: the reverse; mixed: alternating like a "
               "chequerboard; any: detect both.", choices=("black", "white", "mixed", "any")),
-    ParamSpec("points", "centers", "Correspondences per marker: its centre or its 4 corners.",
+    ParamSpec("points", "corners", "Correspondences per marker: its 4 corners or its centre.",
               choices=("centers", "corners")),
     ParamSpec("camera_model", "plumb_bob", "Lens model to solve for.",
               choices=("plumb_bob", "rational_polynomial", "equidistant")),
