@@ -1,26 +1,7 @@
-"""Replay tests run on their own DDS domain, on this machine only (see ros_harness)."""
+"""Replay tests share the integration tier's DDS set-up: their own domain, this machine only."""
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from test.integration.conftest import _stop_node_processes, probe
 
-import pytest
-
-from test.integration.ros_harness import Probe, configure_ros_env, stop_all
-
-configure_ros_env()
-
-
-@pytest.fixture(scope="session")
-def probe() -> Iterator[Probe]:
-    """One probe node for the session (creating DDS participants costs time)."""
-    p = Probe()
-    yield p
-    p.close()
-
-
-@pytest.fixture(autouse=True)
-def _stop_node_processes() -> Iterator[None]:
-    """No node outlives its test, even a failed one."""
-    yield
-    stop_all()
+__all__ = ["_stop_node_processes", "probe"]
