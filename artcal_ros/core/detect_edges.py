@@ -737,9 +737,14 @@ def _side_curvature(lens: DivisionLens, pts: np.ndarray, quads: np.ndarray,
     rel = und - ua[:, None, :]
     t = np.einsum("skd,sd->sk", rel, uu)
     s = np.einsum("skd,sd->sk", rel, un)
-    model = _SideModel(ul, np.full(len(ul), 3))
-    model.fit(t, s, valid, min_sigma_px=1e-3, reject_sigmas=1e9, iterations=1)
-    return model.coef[:, 2]
+    # one unweighted least-squares parabola per side (what _SideModel.fit's first
+    # step does), without the robust rescaling and covariance that are not used here
+    A = _SideModel(ul, np.full(len(ul), 3)).basis(t)
+    w = valid.astype(np.float64)
+    AtW = A * w[..., None]
+    N = np.matmul(AtW.transpose(0, 2, 1), A) + 1e-9 * np.eye(3)
+    rhs = np.matmul(AtW.transpose(0, 2, 1), np.where(valid, s, 0.0)[..., None])
+    return np.linalg.solve(N, rhs)[:, 2, 0]
 
 
 def _estimate_division(model: _SideModel, quads: np.ndarray, t: np.ndarray,
