@@ -561,10 +561,10 @@ def _module_geometry_at(corners: np.ndarray, pts: np.ndarray, side: np.ndarray,
     square = np.array([[0.0, 0.0], [size, 0.0], [size, size], [0.0, size]])
     H = _homographies(np.broadcast_to(square, (M, 4, 2)), corners)
     marker = side // 4
-    mod = _apply_each(np.linalg.inv(H)[marker], pts)
+    mod = _apply_each(np.take(np.linalg.inv(H), marker, axis=0), pts)
     inward = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
     k = side % 4
-    inner = _apply_each(H[marker], mod + inward[k])
+    inner = _apply_each(np.take(H, marker, axis=0), mod + inward[k])
     m_px = np.einsum("nd,nd->n", pts - inner, n[side])
     along = np.where(k % 2 == 0, mod[:, 0], mod[:, 1])
     along = np.where(k >= 2, size - along, along)  # in side direction
