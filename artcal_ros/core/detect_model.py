@@ -181,13 +181,15 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
     lam: np.ndarray = np.full(S, 1e-3)
     quad = (fit_order >= 3).astype(np.float64)
     quad_c = quad[sid]
+    bas_t = np.ascontiguousarray(bas.T)
 
     def evaluate(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        ps = np.take(p, sid, axis=0)  # (much faster than p[sid] for 2-D rows)
-        e = np.einsum("np,np->n", bas, ps[:, :3])
+        # per-sample parameters, one contiguous column at a time (fast 1-D gathers)
+        ps = [np.take(col, sid) for col in np.ascontiguousarray(p.T)]
+        e = bas_t[0] * ps[0] + bas_t[1] * ps[1] + bas_t[2] * ps[2]
         # the model is evaluated in float32 (its noise is far below the image's);
         # the edge offset d is formed in float64 first so it keeps its precision
-        w = np.maximum(np.exp(ps[:, 5]), 0.03).astype(np.float32)
+        w = np.maximum(np.exp(ps[5]), 0.03).astype(np.float32)
         d = (sc - e).astype(np.float32)
         F, g1, gw = pixel_esf(d, w, box_a, box_b)
         de = -g1
@@ -203,8 +205,8 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
             F = F + c * val
             de = de + c * (pdf / w_eff)
             gw = gw - c * (pdf * z * shrink)
-        D = ps[:, 4].astype(np.float32)
-        res = vals - (ps[:, 3] + D * F)
+        D = ps[4].astype(np.float32)
+        res = vals - (ps[3] + D * F)
         de = D * de
         jac = np.empty((len(sid), 6), dtype=np.float32)
         jac[:, :3] = de[:, None] * bas

@@ -42,9 +42,14 @@ def homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 
 def apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Apply (M, 3, 3) homographies to points (M, P, 2) -> (M, P, 2)."""
-    q = np.einsum("mij,mpj->mpi", H[:, :, :2], pts) + H[:, None, :, 2]
+    # plain broadcasting: einsum is slow on the stride-0 (broadcast) point arrays
+    x, y = pts[..., 0], pts[..., 1]
+    h = H[:, None, :, :]
+    X = h[..., 0, 0] * x + h[..., 0, 1] * y + h[..., 0, 2]
+    Y = h[..., 1, 0] * x + h[..., 1, 1] * y + h[..., 1, 2]
+    W = h[..., 2, 0] * x + h[..., 2, 1] * y + h[..., 2, 2]
     with np.errstate(all="ignore"):
-        return q[..., :2] / q[..., 2:3]
+        return np.stack([X / W, Y / W], axis=-1)
 
 
 def _module_homographies(corners: np.ndarray, bits: int) -> np.ndarray:
