@@ -561,22 +561,24 @@ def _module_geometry_at(corners: np.ndarray, pts: np.ndarray, side: np.ndarray,
     square = np.array([[0.0, 0.0], [size, 0.0], [size, size], [0.0, size]])
     H = _homographies(np.broadcast_to(square, (M, 4, 2)), corners)
     marker = side // 4
-    mod = _apply_each(np.take(np.linalg.inv(H), marker, axis=0), pts)
+    mod = _apply_each(np.linalg.inv(H), marker, pts)
     inward = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
     k = side % 4
-    inner = _apply_each(np.take(H, marker, axis=0), mod + inward[k])
+    inner = _apply_each(H, marker, mod + inward[k])
     m_px = np.einsum("nd,nd->n", pts - inner, n[side])
     along = np.where(k % 2 == 0, mod[:, 0], mod[:, 1])
     along = np.where(k >= 2, size - along, along)  # in side direction
     return along, np.clip(m_px, 0.5, None)
 
 
-def _apply_each(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Apply one homography (N, 3, 3) to each point (N, 2)."""
+def _apply_each(H: np.ndarray, which: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Apply homography ``H[which[i]]`` ((M, 3, 3), which (N,)) to each point (N, 2)."""
+    h = [np.take(col, which) for col in np.ascontiguousarray(H.reshape(-1, 9).T)]
     x, y = pts[:, 0], pts[:, 1]
-    q = H[:, :, 0] * x[:, None] + H[:, :, 1] * y[:, None] + H[:, :, 2]
+    w = h[6] * x + h[7] * y + h[8]
     with np.errstate(all="ignore"):
-        return q[:, :2] / q[:, 2:3]
+        return np.stack([(h[0] * x + h[1] * y + h[2]) / w, (h[3] * x + h[4] * y + h[5]) / w],
+                        axis=1)
 
 
 def _far_cells(along: np.ndarray, same: np.ndarray, blur_modules: np.ndarray) -> np.ndarray:
