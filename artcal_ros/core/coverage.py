@@ -243,18 +243,23 @@ class ViewCollector:
         covered = float((counts > 0).mean())
         missing: list[str] = []
         if n < cfg.min_views:
-            missing.append(f"{cfg.min_views - n} more views")
+            missing.append(_count(cfg.min_views - n, "more view"))
         if covered < cfg.min_coverage:
             empty = empty_regions(counts)
             where = f" (nothing yet at {', '.join(empty)})" if empty else ""
             missing.append(f"coverage {covered:.0%} of {cfg.min_coverage:.0%}{where}")
         if lr < 2:
-            missing.append(f"{2 - lr} views with the board turned left or right "
+            missing.append(f"{_count(2 - lr, 'view')} with the board turned left or right "
                            f"by more than {cfg.tilt_deg:g} deg")
         if ud < 2:
-            missing.append(f"{2 - ud} views with the board tipped up or down "
+            missing.append(f"{_count(2 - ud, 'view')} with the board tipped up or down "
                            f"by more than {cfg.tilt_deg:g} deg")
         return Readiness(n, cfg.min_views, covered, cfg.min_coverage, lr, ud, tuple(missing))
+
+
+def _count(n: int, noun: str) -> str:
+    """``1 view``, ``2 views``."""
+    return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 
 
 def empty_regions(counts: np.ndarray) -> list[str]:
