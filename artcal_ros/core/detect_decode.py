@@ -17,7 +17,8 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect_edges import bilinear
-from artcal_ros.core.detect_verify import apply_h, border_is_dark, homographies
+from artcal_ros.core.detect_verify import border_is_dark
+from artcal_ros.core.homography import apply_h, homographies
 
 
 class PatternTable:

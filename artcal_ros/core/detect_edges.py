@@ -39,6 +39,7 @@ import numpy as np
 
 from artcal_ros.core.detect_lens import DivisionLens, LensModel, LensPool
 from artcal_ros.core.detect_model import fit_step_model, phi_cdf, side_median, side_slots
+from artcal_ros.core.homography import apply_h, module_homographies
 
 _STEP = 0.25  # profile sample spacing, pixels
 
@@ -538,14 +539,13 @@ def _module_geometry(corners: np.ndarray, base: np.ndarray, n: np.ndarray,
     M = len(corners)
     S, K, _ = base.shape
     size = bits + 2.0
-    square = np.array([[0.0, 0.0], [size, 0.0], [size, size], [0.0, size]])
-    H = _homographies(np.broadcast_to(square, (M, 4, 2)), corners)
+    H = module_homographies(corners, bits)
     Hinv = np.linalg.inv(H)
     pts = base.reshape(M, 4 * K, 2)
-    mod = _apply(Hinv, pts).reshape(S, K, 2)
+    mod = apply_h(Hinv, pts).reshape(S, K, 2)
     inward = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
     inward_s = np.tile(inward, (M, 1))
-    inner = _apply(H, (mod + inward_s[:, None, :]).reshape(M, 4 * K, 2)).reshape(S, K, 2)
+    inner = apply_h(H, (mod + inward_s[:, None, :]).reshape(M, 4 * K, 2)).reshape(S, K, 2)
     m_px = np.einsum("skd,sd->sk", base - inner, n)
     side = np.arange(S) % 4
     along = np.where((side % 2 == 0)[:, None], mod[..., 0], mod[..., 1])
@@ -556,10 +556,8 @@ def _module_geometry(corners: np.ndarray, base: np.ndarray, n: np.ndarray,
 def _module_geometry_at(corners: np.ndarray, pts: np.ndarray, side: np.ndarray,
                         n: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray]:
     """:func:`_module_geometry` for flat points: pts (N, 2) of sides ``side`` (N,)."""
-    M = len(corners)
     size = bits + 2.0
-    square = np.array([[0.0, 0.0], [size, 0.0], [size, size], [0.0, size]])
-    H = _homographies(np.broadcast_to(square, (M, 4, 2)), corners)
+    H = module_homographies(corners, bits)
     marker = side // 4
     mod = _apply_each(np.linalg.inv(H), marker, pts)
     inward = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
@@ -605,30 +603,6 @@ def _far_cells(along: np.ndarray, same: np.ndarray, blur_modules: np.ndarray) ->
         far += other * (left - right)
         left = right
     return far
-
-
-def _homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """(M, 3, 3) homographies mapping src (M, 4, 2) onto dst (M, 4, 2)."""
-    M = len(src)
-    A = np.zeros((M, 8, 8))
-    x, y = src[..., 0], src[..., 1]
-    X, Y = dst[..., 0], dst[..., 1]
-    A[:, 0::2, 0], A[:, 0::2, 1], A[:, 0::2, 2] = x, y, 1.0
-    A[:, 0::2, 6], A[:, 0::2, 7] = -x * X, -y * X
-    A[:, 1::2, 3], A[:, 1::2, 4], A[:, 1::2, 5] = x, y, 1.0
-    A[:, 1::2, 6], A[:, 1::2, 7] = -x * Y, -y * Y
-    b = np.stack([X, Y], axis=-1).reshape(M, 8)
-    with np.errstate(all="ignore"):
-        h = np.linalg.solve(A + 1e-12 * np.eye(8), b[..., None])[..., 0]
-    return np.concatenate([h, np.ones((M, 1))], axis=1).reshape(M, 3, 3)
-
-
-def _apply(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Apply (M, 3, 3) homographies to (M, P, 2) points."""
-    q = np.matmul(pts, H[:, :2, :2].transpose(0, 2, 1)) + H[:, None, :2, 2]
-    w = np.matmul(pts, H[:, 2, :2][:, :, None]) + H[:, None, 2, 2:3]
-    with np.errstate(all="ignore"):
-        return q / w
 
 
 def _clean_profiles(t: np.ndarray, length: np.ndarray, same: np.ndarray) -> np.ndarray:

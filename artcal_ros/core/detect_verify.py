@@ -14,49 +14,7 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect_edges import bilinear
 from artcal_ros.core.detect_lens import DivisionLens, LensModel
-
-
-def homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
-    """(M, 3, 3) homographies mapping src (M, 4, 2) onto dst (M, 4, 2) (batched DLT, h33 = 1)."""
-    M = len(src)
-    A = np.zeros((M, 8, 8))
-    b = np.zeros((M, 8))
-    x, y = src[..., 0], src[..., 1]
-    u, v = dst[..., 0], dst[..., 1]
-    A[:, 0::2, 0] = x
-    A[:, 0::2, 1] = y
-    A[:, 0::2, 2] = 1.0
-    A[:, 0::2, 6] = -x * u
-    A[:, 0::2, 7] = -y * u
-    A[:, 1::2, 3] = x
-    A[:, 1::2, 4] = y
-    A[:, 1::2, 5] = 1.0
-    A[:, 1::2, 6] = -x * v
-    A[:, 1::2, 7] = -y * v
-    b[:, 0::2] = u
-    b[:, 1::2] = v
-    with np.errstate(all="ignore"):
-        h = np.linalg.solve(A + 1e-12 * np.eye(8), b[..., None])[..., 0]
-    return np.concatenate([h, np.ones((M, 1))], axis=1).reshape(M, 3, 3)
-
-
-def apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Apply (M, 3, 3) homographies to points (M, P, 2) -> (M, P, 2)."""
-    # plain broadcasting: einsum is slow on the stride-0 (broadcast) point arrays
-    x, y = pts[..., 0], pts[..., 1]
-    h = H[:, None, :, :]
-    X = h[..., 0, 0] * x + h[..., 0, 1] * y + h[..., 0, 2]
-    Y = h[..., 1, 0] * x + h[..., 1, 1] * y + h[..., 1, 2]
-    W = h[..., 2, 0] * x + h[..., 2, 1] * y + h[..., 2, 2]
-    with np.errstate(all="ignore"):
-        return np.stack([X / W, Y / W], axis=-1)
-
-
-def _module_homographies(corners: np.ndarray, bits: int) -> np.ndarray:
-    """Homographies from module coordinates (0..bits+2, x right, y down) to the image."""
-    n = bits + 2.0
-    square = np.array([[0.0, 0.0], [n, 0.0], [n, n], [0.0, n]])
-    return homographies(np.broadcast_to(square, corners.shape).copy(), corners)
+from artcal_ros.core.homography import apply_h, homographies, module_homographies
 
 
 def _ring(s: np.ndarray, near: float, far: float) -> np.ndarray:
@@ -70,7 +28,7 @@ def border_is_dark(lin: np.ndarray, quads: np.ndarray, bits: int) -> np.ndarray:
     if len(quads) == 0:
         return np.zeros(0, dtype=bool)
     n = bits + 2.0
-    H = _module_homographies(quads, bits)
+    H = module_homographies(quads, bits)
     s = np.linspace(0.5, n - 0.5, 4 * (bits + 2))
     ring_in = _ring(s, 0.5, n - 0.5)
     ring_out = _ring(s, -0.5, n + 0.5)
@@ -120,7 +78,7 @@ def code_errors(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, ids: np.
     if M == 0:
         return np.zeros(0, dtype=np.intp)
     n = board.bits + 2
-    H = _module_homographies(corners, board.bits)
+    H = module_homographies(corners, board.bits)
     sub = (np.arange(3) - 1.0) * 0.25
     cx, cy = np.meshgrid(np.arange(n) + 0.5, np.arange(n) + 0.5)  # cy: row, cx: col
     px = (cx[..., None, None] + sub[None, None, None, :]).repeat(3, axis=2)
