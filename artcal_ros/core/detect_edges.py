@@ -319,32 +319,31 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         return EdgeFit(np.zeros((0, 4, 2)), z, z, z, np.zeros(0, dtype=bool))
     quads = np.asarray(quads, dtype=np.float64)
     lin = np.asarray(lin, dtype=np.float32)
-    a, u, n, length = _side_frames(quads)
+    sign = np.repeat(np.where(dark_inside, 1.0, -1.0), 4)
+    # coarse pass: strongest gradient near the approximate side. The quad finder's
+    # contour runs through the pixels on the dark side of the border edge: up to a
+    # pixel or two inside a black border, outside a white one.
+    inward = np.where(sign > 0, 0.0, 1.5)
+    _, _, _, length0 = _side_frames(quads)
+    reach = np.minimum(0.45 * length0 / (bits + 2), 4.0)
+    model, t, present, a, u, n = _coarse_lines(lin, quads, sign, -reach - inward,
+                                               reach + 1.5 - inward, margin_px,
+                                               max_profiles)
+    # the profiles, the windows and the along-side margins are then laid out again
+    # from the quad those lines give: the quad finder's corners can be a pixel or two
+    # off, which puts the margins (and the model's code cells) in the wrong place
+    coarse, _ = _intersect(model, a, u, n, M)
+    moved = np.abs(coarse - quads).max(axis=(1, 2))
+    good = np.isfinite(coarse).all(axis=(1, 2)) & (
+        moved < np.maximum(3.0, 0.1 * length0.reshape(M, 4).min(axis=1)))
+    quads = np.where(good[:, None, None], coarse, quads)
+    model, t, present, a, u, n = _coarse_lines(lin, quads, sign, np.full(4 * M, -1.0),
+                                               np.full(4 * M, 1.0), margin_px, max_profiles)
+    length = model.length
     S = len(a)
     module = length / (bits + 2)
-    sign = np.repeat(np.where(dark_inside, 1.0, -1.0), 4)
-
-    # along-side profile positions, the same count K for every side (padded)
-    usable = np.maximum(length - 2.0 * margin_px, 0.0)
-    k_side = np.clip(np.round(usable).astype(np.intp), 0, max_profiles)
-    K = max(int(k_side.max()), 1)
-    kk = np.arange(K)[None, :]
-    t = margin_px + (kk + 0.5) / np.maximum(k_side[:, None], 1) * usable[:, None]
-    present = kk < k_side[:, None]
-
     order = np.where(allow_curvature & (length >= curve_min_px), 3, 2)
-    model = _SideModel(length, order)
-
-    # coarse pass: strongest gradient near the approximate side (the quad finder's
-    # contour runs up to a pixel inside the true edge)
-    reach = np.minimum(0.45 * module, 4.0)
-    # every other profile is enough for this first line
-    tc, pc = t[:, ::2], present[:, ::2]
-    offsets: np.ndarray = np.arange(-4.0 - 1.0, 5.5 + 1.0 + 1e-9, 2 * _STEP)
-    prof = _profiles(lin, a, u, n, tc, np.zeros_like(tc), offsets)
-    s_edge, valid = _coarse_offsets(prof, offsets, sign, -reach, reach + 1.5)
-    valid &= pc
-    model.fit(tc, s_edge, valid, min_sigma_px=0.05, reject_sigmas=3.0)
+    model.order = order
 
     used_lens: LensModel | DivisionLens | None = lens
     if method == "model":
@@ -376,6 +375,37 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
     ok = side_ok.reshape(M, 4).all(axis=1) & np.isfinite(corners).all(axis=(1, 2))
     return EdgeFit(corners, sigma, model.rms.reshape(M, 4), contrast.reshape(M, 4), ok,
                    used_lens)
+
+
+def _coarse_lines(lin: np.ndarray, quads: np.ndarray, sign: np.ndarray, lo: np.ndarray,
+                  hi: np.ndarray, margin_px: float, max_profiles: int
+                  ) -> tuple[_SideModel, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
+                             np.ndarray]:
+    """Straight edge lines from the strongest gradient within [lo, hi] of each quad side.
+
+    Also lays out the along-side profile positions: the same count K for every
+    side (padded), ``margin_px`` clear of the corners.
+
+    Returns:
+        the line model, t (S, K), present (S, K), and the side frames a, u, n.
+    """
+    a, u, n, length = _side_frames(quads)
+    usable = np.maximum(length - 2.0 * margin_px, 0.0)
+    k_side = np.clip(np.round(usable).astype(np.intp), 0, max_profiles)
+    K = max(int(k_side.max()), 1)
+    kk = np.arange(K)[None, :]
+    t = margin_px + (kk + 0.5) / np.maximum(k_side[:, None], 1) * usable[:, None]
+    present = kk < k_side[:, None]
+    model = _SideModel(length, np.full(len(a), 2))
+    # every other profile is enough for a first line
+    tc, pc = t[:, ::2], present[:, ::2]
+    first = min(float(lo.min()), 0.0) - 1.0
+    last = max(float(hi.max()), 0.0) + 1.0
+    offsets: np.ndarray = np.arange(first, last + 1e-9, 2 * _STEP)
+    prof = _profiles(lin, a, u, n, tc, np.zeros_like(tc), offsets)
+    s_edge, valid = _coarse_offsets(prof, offsets, sign, lo, hi)
+    model.fit(tc, s_edge, valid & pc, min_sigma_px=0.05, reject_sigmas=3.0)
+    return model, t, present, a, u, n
 
 
 def _area_passes(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
@@ -479,7 +509,9 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         t_s = rel_x * u[:, None, None, 0] + rel_y * u[:, None, None, 1]
         s_s = rel_x * n[:, None, None, 0] + rel_y * n[:, None, None, 1]
         e_s = model.offset(t_s.reshape(S, -1)).reshape(t_s.shape)
-        mask = (present[..., None] & (s_s - e_s >= -inner[:, None, None])
+        on_image = ((pts[..., 0] > -0.5) & (pts[..., 0] < w - 0.5)
+                    & (pts[..., 1] > -0.5) & (pts[..., 1] < h - 0.5))
+        mask = (present[..., None] & on_image & (s_s - e_s >= -inner[:, None, None])
                 & (s_s - e_s <= outer[:, None, None]))
         # from here on only the samples used, flat and grouped by side
         sid = np.nonzero(mask)[0]
