@@ -364,6 +364,7 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
             _drop_flat_parabolas(model, None)
         corners, sigma = _intersect(model, a, u, n, M)
     else:
+        k_side = present.sum(axis=1)
         contrast, valid = _area_passes(lin, a, u, n, t, present, model, module, k_side,
                                        inner_same, quiet_modules, level_modules,
                                        min_level_px, max_level_px, min_contrast, passes)
