@@ -233,9 +233,10 @@ class Detector:
                                quiet_modules=self._quiet_modules,
                                lens_pool=self._lens_pool if self.config.pool_lens else None)
             # a lens estimated from this frame's edges bends the fitted sides; it moves
-            # the centres too only when it is well determined (a noisy one would add
-            # more error to them than the distortion it removes)
-            if isinstance(fit.lens, DivisionLens) and fit.lens.significance >= 2.0:
+            # the centres too once it is determined better than "no distortion" is
+            # (|lam| above its standard deviation; a noisier one would add more error
+            # to them than the distortion it removes)
+            if isinstance(fit.lens, DivisionLens) and fit.lens.significance >= 1.0:
                 lens = fit.lens
             moved = np.abs(fit.corners_px - quads).max(axis=(1, 2))
             # the quad finder's polygon can be a few pixels off on large, bent markers;

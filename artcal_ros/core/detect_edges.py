@@ -359,7 +359,8 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
             model.order = np.full(S, 3)
             model.coef[:, 2] = _lens_bend(used_lens, a, u, n, length)
             contrast = _model_passes(lin, quads, a, u, n, t, present, model, module, bits,
-                                     inner_same, quiet_modules, 1, np.full(S, 2))
+                                     inner_same, quiet_modules, 1, np.full(S, 2),
+                                     used_lens, margin_px)
         else:
             _drop_flat_parabolas(model, None)
         corners, sigma = _intersect(model, a, u, n, M)
@@ -470,11 +471,16 @@ def _drop_flat_parabolas(model: _SideModel, refit: Callable[[], None] | None) ->
 def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarray,
                   n: np.ndarray, t: np.ndarray, present: np.ndarray, model: _SideModel,
                   module: np.ndarray, bits: int, inner_same: np.ndarray | None,
-                  quiet_modules: float, passes: int, fit_order: np.ndarray) -> np.ndarray:
+                  quiet_modules: float, passes: int, fit_order: np.ndarray,
+                  lens: LensModel | DivisionLens | None = None,
+                  corner_clear: float = 1.5) -> np.ndarray:
     """Blurred-step model fits (see :mod:`detect_model`); updates ``model``; returns contrast.
 
     ``fit_order`` (S,) says per side whether the parabola term is free (3) or held
-    at its current value (2: a straight line, or a lens-given bend).
+    at its current value (2: a straight line, or a lens-given bend). Samples inside
+    the border must stay ``corner_clear`` pixels inside both neighbouring sides:
+    near an acute corner (a steeply tilted marker) a cut straight inward from the
+    side would otherwise leave the marker through its neighbour.
     """
     S = t.shape[0]
     M = S // 4
@@ -513,13 +519,15 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         on_image = ((pts[..., 0] > -0.5) & (pts[..., 0] < w - 0.5)
                     & (pts[..., 1] > -0.5) & (pts[..., 1] < h - 0.5))
         mask = (present[..., None] & on_image & (s_s - e_s >= -inner[:, None, None])
-                & (s_s - e_s <= outer[:, None, None]))
+                & (s_s - e_s <= outer[:, None, None])
+                & ((s_s - e_s >= 0.0) | _clear_of_neighbours(corners, px, py, corner_clear)))
         # from here on only the samples used, flat and grouped by side
         sid = np.nonzero(mask)[0]
         px_c, py_c, t_c, s_c = px[mask], py[mask], t_s[mask], s_s[mask]
         values = lin[py_c.astype(np.intp), px_c.astype(np.intp)].astype(np.float64)
         basis = model.basis_at(t_c, sid)
-        along, m_s = _module_geometry_at(corners, np.stack([px_c, py_c], axis=-1), sid, n, bits)
+        along, m_s = _module_geometry_at(corners, np.stack([px_c, py_c], axis=-1), sid, n,
+                                         bits, lens)
         if rows:
             blur_modules = (blur * (bits + 2) / model.length)[sid]
             same = np.asarray(inner_same, bool).reshape(S, rows, bits)[sid]
@@ -541,6 +549,34 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
             lo = side_median(values, rel < -0.7, sid, slot, S, P)
         contrast = np.abs(np.nan_to_num(hi - lo))
     return contrast
+
+
+def _clear_of_neighbours(corners: np.ndarray, px: np.ndarray, py: np.ndarray,
+                         clear: float) -> np.ndarray:
+    """(S, ...) bool: points (px, py) of each side at least ``clear`` inside its two neighbours.
+
+    Args:
+        corners: (M, 4, 2) current quads; side k runs from corner k to k+1.
+        px, py: (S, ...) point coordinates, S = 4 M, grouped by side.
+    """
+    M = len(corners)
+    start = corners
+    end = np.roll(corners, -1, axis=1)
+    d = end - start
+    inward = np.stack([-d[..., 1], d[..., 0]], axis=-1)
+    inward /= np.maximum(np.linalg.norm(inward, axis=-1, keepdims=True), 1e-12)
+    centre = corners.mean(axis=1, keepdims=True)
+    flip = np.einsum("mkd,mkd->mk", centre - start, inward) < 0
+    inward[flip] *= -1.0
+    extra = (1,) * (px.ndim - 1)
+    ok = np.ones(px.shape, dtype=bool)
+    for shift in (-1, 1):  # the previous and the next side
+        p0 = np.roll(start, -shift, axis=1).reshape(4 * M, 2)
+        nin = np.roll(inward, -shift, axis=1).reshape(4 * M, 2)
+        dist = ((px - p0[:, 0].reshape(-1, *extra)) * nin[:, 0].reshape(-1, *extra)
+                + (py - p0[:, 1].reshape(-1, *extra)) * nin[:, 1].reshape(-1, *extra))
+        ok &= dist >= clear
+    return ok
 
 
 def _lens_bend(lens: LensModel | DivisionLens, a: np.ndarray, u: np.ndarray, n: np.ndarray,
@@ -587,15 +623,29 @@ def _module_geometry(corners: np.ndarray, base: np.ndarray, n: np.ndarray,
 
 
 def _module_geometry_at(corners: np.ndarray, pts: np.ndarray, side: np.ndarray,
-                        n: np.ndarray, bits: int) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_module_geometry` for flat points: pts (N, 2) of sides ``side`` (N,)."""
+                        n: np.ndarray, bits: int,
+                        lens: LensModel | DivisionLens | None = None
+                        ) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`_module_geometry` for flat points: pts (N, 2) of sides ``side`` (N,).
+
+    With a lens the marker's homography is taken between undistorted pixels, so
+    the code cells land where the lens puts them (near the corners of a strongly
+    distorted image, the distorted quad's homography misplaces them by up to a
+    pixel along the side).
+    """
     size = bits + 2.0
-    H = module_homographies(corners, bits)
     marker = side // 4
-    mod = _apply_each(np.linalg.inv(H), marker, pts)
     inward = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
     k = side % 4
-    inner = _apply_each(H, marker, mod + inward[k])
+    if lens is None:
+        H = module_homographies(corners, bits)
+        mod = _apply_each(np.linalg.inv(H), marker, pts)
+        inner = _apply_each(H, marker, mod + inward[k])
+    else:
+        M = len(corners)
+        H = module_homographies(lens.undistort(corners.reshape(-1, 2)).reshape(M, 4, 2), bits)
+        mod = _apply_each(np.linalg.inv(H), marker, lens.undistort(pts))
+        inner = lens.distort(_apply_each(H, marker, mod + inward[k]))
     m_px = np.einsum("nd,nd->n", pts - inner, n[side])
     along = np.where(k % 2 == 0, mod[:, 0], mod[:, 1])
     along = np.where(k >= 2, size - along, along)  # in side direction
