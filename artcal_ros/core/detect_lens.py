@@ -114,12 +114,26 @@ class DivisionLens:
         return self.centre + d / self._factor(d)
 
     def distort(self, pts_px: np.ndarray) -> np.ndarray:
-        """(N, 2) straightened pixels -> (N, 2) image pixels (fixed-point inverse)."""
+        """(N, 2) straightened pixels -> (N, 2) image pixels.
+
+        Newton's method on the radius: ``r_d = r_u (1 + lam r_d^2 + lam2 r_d^4)``.
+        """
         du = np.asarray(pts_px, dtype=np.float64).reshape(-1, 2) - self.centre
-        d = du.copy()
-        for _ in range(40):
-            d = du * self._factor(d)
-        return self.centre + d
+        ru = np.hypot(du[:, 0], du[:, 1]) / self.scale
+        rd = ru.copy()
+        for _ in range(20):
+            r2 = rd * rd
+            g = rd - ru * (1.0 + self.lam * r2 + self.lam2 * r2 * r2)
+            dg = 1.0 - ru * rd * (2.0 * self.lam + 4.0 * self.lam2 * r2)
+            with np.errstate(all="ignore"):
+                step = g / dg
+            step = np.nan_to_num(step)
+            rd -= step
+            if np.abs(step).max(initial=0.0) < 1e-13:
+                break
+        with np.errstate(all="ignore"):
+            gain = np.where(ru > 0, rd / ru, 1.0)
+        return self.centre + du * gain[:, None]
 
 
 class LensPool:
