@@ -157,7 +157,9 @@ def _aruco_detector(board: Board, config: DetectorConfig) -> cv2.aruco.ArucoDete
     p.detectInvertedMarker = board.polarity != "black"
     p.minMarkerPerimeterRate = 0.01
     p.adaptiveThreshWinSizeMax = max(int(config.adaptive_window_max), 3)
-    p.minDistanceToBorder = 2
+    # markers whose border comes within a pixel or two of the image edge are still
+    # whole; the edge fit ignores samples off the image
+    p.minDistanceToBorder = 0
     return cv2.aruco.ArucoDetector(board.dictionary, p)
 
 
