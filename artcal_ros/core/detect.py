@@ -46,6 +46,7 @@ from artcal_ros.core.detect_verify import (
     diagonal_centres,
     inner_border_cells,
     neighbour_support,
+    outer_neighbours,
 )
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import DetectionError
@@ -181,6 +182,16 @@ class Detector:
         gap = board.marker_separation / board.module_length
         self._quiet_modules = 0.5 * gap if board.polarity == "mixed" else gap
 
+    def _outer_edges(self, ids: np.ndarray) -> np.ndarray | None:
+        """Sides whose narrow quiet zone ends at a known edge: the next tile of a mixed board.
+
+        (On single-polarity boards the quiet zone is a whole gap wide and the
+        edge window stops before it ends.)
+        """
+        if self.board.polarity != "mixed":
+            return None
+        return outer_neighbours(self.board, ids)
+
     def reset_lens(self) -> None:
         """Forget the lens distortion learnt from earlier frames (a different camera)."""
         self._lens_pool.reset()
@@ -233,6 +244,8 @@ class Detector:
                                inner_same=inner_border_cells(self.board, ids,
                                                              rows=self.config.code_rows),
                                quiet_modules=self._quiet_modules,
+                               outer_same=self._outer_edges(ids),
+                               beyond_modules=self._quiet_modules,
                                lens_pool=self._lens_pool if self.config.pool_lens else None)
             # a lens estimated from this frame's edges bends the fitted sides; it moves
             # the centres too once it is determined better than "no distortion" is

@@ -274,7 +274,8 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
                  min_contrast: float = 0.02, passes: int = 2,
                  lens: LensModel | DivisionLens | None = None,
                  inner_same: np.ndarray | None = None,
-                 quiet_modules: float = 1.0, method: str = "model",
+                 quiet_modules: float = 1.0, outer_same: np.ndarray | None = None,
+                 beyond_modules: float = 1.0, method: str = "model",
                  max_profiles: int = 40, lens_pool: LensPool | None = None) -> EdgeFit:
     """Refine approximate quads to sub-pixel corners from their border edges.
 
@@ -301,6 +302,11 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
             border's colour. The model fit uses them to model the code's edges
             behind the border; without them the window stops short of the code.
         quiet_modules: width of the quiet zone outside the border, in modules.
+        outer_same: optional (M, 4) bool, per side: the board has a known edge back
+            to the border's colour at the quiet zone's end (the neighbouring tile
+            of a mixed board). The model fit then models that edge and reaches up
+            to ``beyond_modules`` past it; without it the window stops short of
+            the quiet zone's end.
         method: ``model`` (blurred-step model fit, :mod:`detect_model`) or ``area``
             (the symmetric-area estimator of this module's docstring).
         max_profiles: most profiles per side (long sides are sampled sparser).
@@ -350,8 +356,12 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         # lines (parabolas on long sides when curvature is allowed); then, with a lens
         # given or estimated from those parabolas, every side bent as the lens bends a
         # straight edge and only its offset and angle fitted
+        # with the lens still to be estimated from this pass's free parabolas, the
+        # edge beyond a narrow quiet zone waits for the lens-aware pass below
+        later = lens is None and allow_curvature
         contrast = _model_passes(lin, quads, a, u, n, t, present, model, module, bits,
-                                 inner_same, quiet_modules, passes, order)
+                                 inner_same, quiet_modules, passes, order, None, margin_px,
+                                 None if later else outer_same, beyond_modules)
         valid = present
         if lens is None and allow_curvature:
             used_lens = _estimate_division(model, quads, t, valid, lin.shape, pool=lens_pool)
@@ -360,9 +370,13 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
             model.coef[:, 2] = _lens_bend(used_lens, a, u, n, length)
             contrast = _model_passes(lin, quads, a, u, n, t, present, model, module, bits,
                                      inner_same, quiet_modules, 1, np.full(S, 2),
-                                     used_lens, margin_px)
+                                     used_lens, margin_px, outer_same, beyond_modules)
         else:
             _drop_flat_parabolas(model, None)
+            if later and outer_same is not None:
+                contrast = _model_passes(lin, quads, a, u, n, t, present, model, module,
+                                         bits, inner_same, quiet_modules, 1, model.order,
+                                         None, margin_px, outer_same, beyond_modules)
         corners, sigma = _intersect(model, a, u, n, M)
     else:
         k_side = present.sum(axis=1)
@@ -473,7 +487,8 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
                   module: np.ndarray, bits: int, inner_same: np.ndarray | None,
                   quiet_modules: float, passes: int, fit_order: np.ndarray,
                   lens: LensModel | DivisionLens | None = None,
-                  corner_clear: float = 1.5) -> np.ndarray:
+                  corner_clear: float = 1.5, outer_same: np.ndarray | None = None,
+                  beyond_modules: float = 1.0) -> np.ndarray:
     """Blurred-step model fits (see :mod:`detect_model`); updates ``model``; returns contrast.
 
     ``fit_order`` (S,) says per side whether the parabola term is free (3) or held
@@ -503,6 +518,11 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         else:
             inner = np.clip(np.minimum(rows * m_med + 2.0, (rows + 1) * m_med - 1.5), 1.0, 5.0)
         outer = np.clip(quiet_modules * m_med - 1.2, 1.5, 5.0)
+        known = None
+        if outer_same is not None:
+            known = np.asarray(outer_same, bool).reshape(S)
+            reach = np.clip((quiet_modules + beyond_modules) * m_med - 1.2, 1.5, 5.0)
+            outer = np.where(known, np.maximum(reach, outer), outer)
         # samples: the pixels nearest a grid of points along and across each side, so
         # the model sees raw pixel values (interpolation would add its own, phase-
         # dependent edge shifts)
@@ -537,7 +557,9 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         else:
             far = np.zeros((len(sid), 1), dtype=np.float32)
         coef, cov, blur, rms = fit_step_model(
-            values, s_c, sid, S, basis, model.coef, far, m_s, fit_order, n)
+            values, s_c, sid, S, basis, model.coef, far, m_s, fit_order, n,
+            outer=None if known is None else known[sid].astype(np.float32),
+            quiet_px=None if known is None else quiet_modules * m_s)
         model.coef = coef
         model.cov = cov
         model.rms = rms

@@ -16,7 +16,10 @@ level and ``A + D`` the quiet zone's, ``m`` the module width at that point (from
 the quad's homography) and ``c1``, ``c2`` the share of the other colour in the
 first and second code rows behind the border at that point (known from the
 decoded id; blurred along the side, which is exact for a Gaussian blur since it
-is separable). All sides are solved together by damped Gauss-Newton.
+is separable). Where the board puts a known edge just beyond the quiet zone
+(the neighbouring tile of a mixed board), a term ``- c_out * Phi((s - e - q) / w)``
+models it too, ``q`` being the quiet zone's width there. All sides are solved
+together by damped Gauss-Newton.
 """
 
 from __future__ import annotations
@@ -127,6 +130,7 @@ def pixel_esf(d: np.ndarray, sigma: np.ndarray, box_a: np.ndarray, box_b: np.nda
 def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides: int,
                    basis: np.ndarray, coef0: np.ndarray, far: np.ndarray,
                    module_px: np.ndarray, fit_order: np.ndarray, normal: np.ndarray, *,
+                   outer: np.ndarray | None = None, quiet_px: np.ndarray | None = None,
                    samples_per_px: float = 1.0, iterations: int = 4
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Fit the blurred-step model (module docstring) to every side.
@@ -145,6 +149,9 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
         module_px: (N,) module width at each sample, pixels.
         fit_order: (S,) 3 where the parabola term is free, 2 where it is held.
         normal: (S, 2) each side's unit normal (sets the pixel's footprint across it).
+        outer: optional (N,) share of the border's colour beyond the quiet zone at
+            each sample (1 where the board puts a known edge there, 0 where not).
+        quiet_px: (N,) the quiet zone's width at each sample, pixels (with ``outer``).
         samples_per_px: sample density along the normal (for the covariance: samples
             closer than a pixel are not independent).
         iterations: Gauss-Newton steps.
@@ -165,6 +172,8 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
     bas = np.asarray(basis, dtype=np.float64)
     farc = np.asarray(far, dtype=np.float32)
     modc = np.asarray(module_px, dtype=np.float32)
+    outc = None if outer is None else np.asarray(outer, dtype=np.float32)
+    quietc = None if quiet_px is None else np.asarray(quiet_px, dtype=np.float32)
     with np.errstate(all="ignore"), warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # sides without samples: NaN
         rel = sc - np.einsum("np,np->n", bas, coef0[sid])
@@ -193,10 +202,16 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
         d = (sc - e).astype(np.float32)
         F, g1, gw = pixel_esf(d, w, box_a, box_b)
         de = -g1
-        if rows:
-            # a Gaussian of the same second moment is close enough for this correction
-            w_eff = np.sqrt(w * w + box_var)
-            shrink = (w * w) / (w_eff * w_eff)
+        # a Gaussian of the same second moment is close enough for the other edges
+        w_eff = np.sqrt(w * w + box_var)
+        shrink = (w * w) / (w_eff * w_eff)
+        if outc is not None and quietc is not None:
+            # the known edge beyond the quiet zone, back to the border's colour
+            z = (d - quietc) / w_eff
+            val, pdf = norm_cdf_pdf(z)
+            F = F - outc * val
+            de = de + outc * (pdf / w_eff)
+            gw = gw + outc * (pdf * z * shrink)
         for r in range(rows):
             # the edge where code row r+1 begins, weighted by its change of colour
             c = farc[:, r] - (farc[:, r - 1] if r else 0.0)

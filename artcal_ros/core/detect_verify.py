@@ -58,6 +58,15 @@ def inner_border_cells(board: Board, ids: np.ndarray, rows: int = 2) -> np.ndarr
     return out
 
 
+def outer_neighbours(board: Board, ids: np.ndarray) -> np.ndarray:
+    """(M, 4) bool: per side (top, right, bottom, left), another marker's tile lies beyond it."""
+    out = np.zeros((len(ids), 4), dtype=bool)
+    for k, marker_id in enumerate(ids):
+        row, col = board.cell_of(int(marker_id))
+        out[k] = (row > 0, col < board.cols - 1, row < board.rows - 1, col > 0)
+    return out
+
+
 def _blurred(printed: np.ndarray) -> np.ndarray:
     from artcal_ros.core.detect_decode import blurred_patterns
 

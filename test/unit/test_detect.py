@@ -1,7 +1,7 @@
 """Marker detection against the renderer's exact truth (fixed seeds; full figures in bench/).
 
 Tolerances sit above the measured values with margin (see docs/benchmarks.md):
-clean corners measure ~0.03 px RMS, noisy and blurred ones ~0.05 px.
+clean corners measure ~0.02 px RMS, noisy and blurred ones ~0.06 px.
 """
 
 from __future__ import annotations
@@ -107,6 +107,28 @@ def test_other_polarities(polarity: str) -> None:
     corner, _, recall = _score(views, [detect(views[0].image, board)], board)
     assert recall >= 0.98
     assert _rms(corner) < 0.05  # also proves the corner order on white markers
+
+
+def test_white_borders_as_accurate_as_black_under_defocus() -> None:
+    """The same pose, blurred, as a black board and as its photographic negative.
+
+    The quad finder's corners sit up to 2 px outside a white border (inside a
+    black one); the refined corners must not inherit that.
+    """
+    rng = np.random.default_rng(2718)
+    rvec, tvec = random_poses(Board(), CAM, 1, rng, partial_fraction=0.0)[0]
+    phot = Photometry(defocus_px=1.4, noise=False)
+    rms = {}
+    for polarity in ("black", "white"):
+        board = Board(polarity=polarity)
+        view = render_view(board, CAM, rvec, tvec, photometry=phot,
+                           rng=np.random.default_rng(1))
+        corner, centre, recall = _score([view], [detect(view.image, board)], board)
+        assert len(corner) > 100 and recall >= 0.98
+        rms[polarity] = _rms(corner)
+        assert _rms(centre) < 0.035, polarity
+    assert rms["black"] < 0.035
+    assert rms["white"] < 1.3 * rms["black"] + 0.003, rms
 
 
 def test_jitter_is_small() -> None:
