@@ -93,6 +93,7 @@ class Tally:
     wanted: int = 0
     found: int = 0
     wrong_ids: int = 0
+    cut: int = 0
 
     def add(self, view: object, ids: np.ndarray, corners: np.ndarray, board: Board,
             centres: np.ndarray | None = None) -> None:
@@ -115,6 +116,8 @@ class Tally:
         off = np.linalg.norm(corners.mean(axis=1) - truth_corners[k].mean(axis=1), axis=1)
         bad = ~(off <= 0.5 * np.nan_to_num(side[k], nan=0.0))
         self.wrong_ids += int(bad.sum())
+        # right id, but the marker runs off the image: its corners there are not corners
+        self.cut += int((~inside[k] & ~bad).sum())
         good = inside[k] & (side[k] >= 20) & ~bad
         self.corner_err.append(err[good].ravel())
         self.centre_err.append(np.linalg.norm(centres[good] - truth_centres[k][good], axis=1))
@@ -186,13 +189,17 @@ def jitter(renders: int, seed: int) -> dict[str, float]:
     return out
 
 
-def false_positives(clutter: int, partial: int, seed: int) -> dict[str, tuple[int, int]]:
-    """Section 3: wrong ids in clutter-only renders and in partial views, per method."""
+def false_positives(clutter: int, partial: int, seed: int) -> dict[str, tuple[int, int, int]]:
+    """Section 3: wrong ids in clutter renders and partial views, and cut markers, per method.
+
+    A cut marker: one that runs off the image, reported with a corner on the
+    image edge.
+    """
     board = Board(polarity="mixed")
     cam = Camera.preset(CAMERA)
     dets = detectors(board)
     rng = np.random.default_rng(seed)
-    wrong = {m: [0, 0] for m in METHODS}
+    wrong = {m: [0, 0, 0] for m in METHODS}
     # clutter: the board turned away behind the camera, so only the background shows
     for _ in range(clutter):
         rvec = rng.normal(0, 0.3, 3)
@@ -207,7 +214,8 @@ def false_positives(clutter: int, partial: int, seed: int) -> dict[str, tuple[in
             t = Tally()
             t.add(view, ids, corners, board)
             wrong[name][1] += t.wrong_ids
-    return {m: (v[0], v[1]) for m, v in wrong.items()}
+            wrong[name][2] += t.cut
+    return {m: (v[0], v[1], v[2]) for m, v in wrong.items()}
 
 
 def speed(frames: int, seed: int) -> tuple[float, float, float]:
@@ -268,10 +276,11 @@ def main() -> None:
     fp = false_positives(n_fp, n_fp, seed + 11)
     print(f"\n## Wrong ids ({n_fp} clutter renders without the board, {n_fp} partial views; "
           "mixed-polarity board)\n")
-    print("| method | clutter | partial views |")
-    print("|---|---|---|")
-    for name, (a, b) in fp.items():
-        print(f"| {name} | {a} | {b} |")
+    print("| method | wrong ids, clutter | wrong ids, partial views | "
+          "cut markers, partial views |")
+    print("|---|---|---|---|")
+    for name, (a, b, c) in fp.items():
+        print(f"| {name} | {a} | {b} | {c} |")
     ms_ours, ms_cv, markers = speed(10, seed + 13)
     print(f"\n## Speed ({markers:.0f} markers per 640x480 frame on average)\n")
     print(f"ours {ms_ours:.0f} ms, default ArucoDetector {ms_cv:.0f} ms per frame "

@@ -164,6 +164,13 @@ def _aruco_detector(board: Board, config: DetectorConfig) -> cv2.aruco.ArucoDete
     return cv2.aruco.ArucoDetector(board.dictionary, p)
 
 
+def _clear_of_edge(corners: np.ndarray, w: int, h: int, clear: float) -> np.ndarray:
+    """(M,) bool: all four corners at least ``clear`` pixels inside the image."""
+    x, y = corners[..., 0], corners[..., 1]
+    inside = (x >= clear) & (x <= w - 1 - clear) & (y >= clear) & (y <= h - 1 - clear)
+    return np.asarray(inside.all(axis=1) & np.isfinite(corners).all(axis=(1, 2)))
+
+
 class Detector:
     """A reusable marker detector for one board.
 
@@ -258,6 +265,8 @@ class Detector:
             # anything further than a tenth of the side is a different edge
             side = np.linalg.norm(quads - np.roll(quads, -1, axis=1), axis=2).min(axis=1)
             keep = fit.ok & (moved < np.maximum(3.0, 0.1 * side))
+            # a marker cut by the image edge has no corner there, only the edge
+            keep &= _clear_of_edge(fit.corners_px, w, h, 0.5)
             corners, sigma = fit.corners_px[keep], fit.corner_sigma_px[keep]
             ids, dark = ids[keep], dark[keep]
         else:
