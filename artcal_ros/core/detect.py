@@ -47,6 +47,7 @@ from artcal_ros.core.detect_verify import (
     inner_border_cells,
     neighbour_support,
     outer_neighbours,
+    sides_are_edges,
 )
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import DetectionError
@@ -279,6 +280,7 @@ class Detector:
         if self.config.max_bit_errors_isolated is not None:
             ok |= (support == 0) & (errors <= self.config.max_bit_errors_isolated)
         ok &= support >= 0
+        ok &= sides_are_edges(lin, corners, dark, bits)
         corners, sigma, ids = corners[ok], sigma[ok], ids[ok]
 
         centres, centre_sigma = diagonal_centres(corners, sigma, lens)

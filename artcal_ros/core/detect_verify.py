@@ -3,11 +3,14 @@
 A marker is kept only when (a) its border has the polarity the board prints
 for that id, (b) the code re-read on the refined quad agrees with the id's
 pattern in almost every cell, and (c) its image neighbours sit where its own
-homography puts them on the board. A false decode in clutter fails (b) or (c);
-a wrong id inside the board fails (c).
+homography puts them on the board, and (d) every refined side reads as the
+border's outer edge, in view. A false decode in clutter fails (b) or (c); a
+wrong id inside the board fails (c); a marker running off the image fails (d).
 """
 
 from __future__ import annotations
+
+import warnings
 
 import numpy as np
 
@@ -37,6 +40,56 @@ def border_is_dark(lin: np.ndarray, quads: np.ndarray, bits: int) -> np.ndarray:
     vin = np.median(bilinear(lin, pin[..., 0], pin[..., 1]), axis=1)
     vout = np.median(bilinear(lin, pout[..., 0], pout[..., 1]), axis=1)
     return np.asarray(vin < vout)
+
+
+def sides_are_edges(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, bits: int,
+                    min_share: float = 0.5) -> np.ndarray:
+    """(M,) bool: every refined side lies on the border's outer edge, in view.
+
+    Half a module inside each side must read as the border and half a module
+    outside as the quiet zone, on most of the side (off-image points do not
+    count), with at least ``min_share`` of the marker's strongest side contrast.
+    A marker that runs off the image fails: the quad finder closes it along
+    the image edge and the fit settles on an inner edge of the border there.
+    """
+    M = len(corners)
+    if M == 0:
+        return np.zeros(0, dtype=bool)
+    h, w = lin.shape
+    n = bits + 2.0
+    H = module_homographies(corners, bits)
+    s = np.linspace(1.5, n - 1.5, 3 * bits)
+    # sides in corner order: top (y = 0), right (x = n), bottom (y = n), left (x = 0)
+    fixed = np.array([0.0, n, n, 0.0])
+    inward = np.array([1.0, -1.0, -1.0, 1.0])
+    horizontal = np.array([True, False, True, False])
+    contrast = np.zeros((M, 4))
+    seen = np.zeros((M, 4))
+    # outside: half a module, but no further than 1.5 px (a marker close to the
+    # image edge keeps its quiet zone's first pixels in view)
+    module_px = np.linalg.norm(corners - np.roll(corners, -1, axis=1), axis=2).min(axis=1) / n
+    out_mod = np.minimum(0.5, 1.5 / np.maximum(module_px, 1e-6))
+    for k in range(4):
+        c = np.full_like(s, fixed[k] + 0.5 * inward[k])
+        inner = np.c_[s, c] if horizontal[k] else np.c_[c, s]
+        pin = apply_h(H, np.broadcast_to(inner, (M, *inner.shape)))
+        c_out = fixed[k] - out_mod[:, None] * inward[k] + 0.0 * s[None, :]
+        s_b = np.broadcast_to(s, c_out.shape)
+        outer = np.stack([s_b, c_out] if horizontal[k] else [c_out, s_b], axis=-1)
+        pout = apply_h(H, outer)
+        on = ((pout[..., 0] >= 0) & (pout[..., 0] <= w - 1) & (pout[..., 1] >= 0)
+              & (pout[..., 1] <= h - 1))
+        seen[:, k] = on.mean(axis=1)
+        vin = np.median(bilinear(lin, pin[..., 0], pin[..., 1]), axis=1)
+        vout = np.where(on, bilinear(lin, pout[..., 0], pout[..., 1]), np.nan)
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)  # a side wholly off the image
+            vout = np.nanmedian(vout, axis=1)
+        contrast[:, k] = np.where(dark, vout - vin, vin - vout)
+    clean = np.nan_to_num(contrast, nan=-1.0)
+    strongest = clean.max(axis=1, keepdims=True)
+    ok = (seen >= 0.8) & (clean >= min_share * strongest) & (strongest > 0)
+    return np.asarray(ok.all(axis=1))
 
 
 def inner_border_cells(board: Board, ids: np.ndarray, rows: int = 2) -> np.ndarray:
