@@ -828,6 +828,11 @@ def _side_curvature(lens: DivisionLens, pts: np.ndarray, quads: np.ndarray,
     return np.linalg.solve(N, rhs)[:, 2, 0]
 
 
+def _division(theta: np.ndarray, centre: np.ndarray, scale: float) -> DivisionLens:
+    """The division lens of parameters (lam, lam2, lam3)."""
+    return DivisionLens(float(theta[0]), centre, scale, float(theta[1]), float(theta[2]))
+
+
 def _estimate_division(model: _SideModel, quads: np.ndarray, t: np.ndarray,
                        valid: np.ndarray, shape: tuple[int, ...], min_sigmas: float = 0.0,
                        pool: LensPool | None = None) -> DivisionLens | None:
@@ -843,8 +848,8 @@ def _estimate_division(model: _SideModel, quads: np.ndarray, t: np.ndarray,
     """
     if pool is not None and pool.shape != tuple(shape[:2]):
         pool.reset(tuple(shape[:2]))
-    pooled_info = pool.info if pool is not None else np.zeros((2, 2))
-    pooled_rhs = pool.info_theta if pool is not None else np.zeros(2)
+    pooled_info = pool.info if pool is not None else np.zeros((3, 3))
+    pooled_rhs = pool.info_theta if pool is not None else np.zeros(3)
     if not (model.order >= 3).any() and not pooled_info.any():
         return None
     h, w = shape[:2]
@@ -856,18 +861,18 @@ def _estimate_division(model: _SideModel, quads: np.ndarray, t: np.ndarray,
     use = (model.order >= 3) & (model.count >= 6)
     var = np.where(use, model.cov[:, 2, 2], np.inf) + 0.003**2
     weight = np.where(use, 1.0 / var, 0.0)
-    theta: np.ndarray = np.zeros(2)  # lam, lam2
+    theta: np.ndarray = np.zeros(3)  # lam, lam2, lam3
     eps = 1e-3
-    # a weak prior keeps the r^4 term at zero unless the sides really ask for it
-    prior = np.diag([1.0 / 0.5**2, 1.0 / 0.3**2])
-    info: np.ndarray = np.zeros((2, 2))
-    own_info: np.ndarray = np.zeros((2, 2))
-    own_grad: np.ndarray = np.zeros(2)
+    # weak priors keep the r^4 and r^6 terms at zero unless the sides really ask for them
+    # (the r^6 term lets the model follow a polynomial lens's image corners)
+    prior = np.diag([1.0 / 0.5**2, 1.0 / 0.3**2, 1.0 / 0.05**2])
+    info: np.ndarray = np.zeros((3, 3))
+    own_info: np.ndarray = np.zeros((3, 3))
+    own_grad: np.ndarray = np.zeros(3)
     for _ in range(3):
-        c = _side_curvature(DivisionLens(theta[0], centre, scale, theta[1]), pts, quads, valid)
-        G = np.stack([(_side_curvature(DivisionLens(theta[0] + eps * (k == 0), centre, scale,
-                                                    theta[1] + eps * (k == 1)),
-                                       pts, quads, valid) - c) / eps for k in range(2)], axis=1)
+        c = _side_curvature(_division(theta, centre, scale), pts, quads, valid)
+        G = np.stack([(_side_curvature(_division(theta + eps * np.eye(3)[k], centre, scale),
+                                       pts, quads, valid) - c) / eps for k in range(3)], axis=1)
         ok = use & np.isfinite(c) & np.isfinite(G).all(axis=1)
         if ok.sum() < 4 and not pooled_info.any():
             return None
@@ -884,9 +889,9 @@ def _estimate_division(model: _SideModel, quads: np.ndarray, t: np.ndarray,
         # this frame's own estimate, linearised at theta: own_info^-1 (own_info theta - grad)
         pool.info = pool.info + own_info
         pool.info_theta = pool.info_theta + own_info @ theta - own_grad
-    lam, lam2 = float(theta[0]), float(theta[1])
+    lam, lam2, lam3 = float(theta[0]), float(theta[1]), float(theta[2])
     sd = float(np.sqrt(max(np.linalg.inv(info)[0, 0], 1e-30)))
     if not np.isfinite(theta).all() or abs(lam) < min_sigmas * sd or abs(lam) > 1.0 \
-            or abs(lam2) > 1.0:
+            or abs(lam2) > 1.0 or abs(lam3) > 1.0:
         return None
-    return DivisionLens(lam, centre, scale, lam2, abs(lam) / sd)
+    return DivisionLens(lam, centre, scale, lam2, lam3, abs(lam) / sd)

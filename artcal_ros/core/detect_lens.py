@@ -84,9 +84,9 @@ class LensModel:
 
 @dataclass(frozen=True)
 class DivisionLens:
-    """Two-parameter division model, estimated from the image itself (plumb lines).
+    """Division model of radial distortion, estimated from the image itself (plumb lines).
 
-    ``p_u = c + (p_d - c) / (1 + lam * r^2 + lam2 * r^4)`` with
+    ``p_u = c + (p_d - c) / (1 + lam * r^2 + lam2 * r^4 + lam3 * r^6)`` with
     ``r = |p_d - c| / scale`` maps image pixels ``p_d`` to pixels where the
     board's straight edges are straight again.
 
@@ -95,6 +95,7 @@ class DivisionLens:
         centre: (2,) distortion centre, pixels.
         scale: radius normalisation, pixels (the image's half diagonal).
         lam2: r^4 coefficient.
+        lam3: r^6 coefficient.
         significance: |lam| over its standard deviation when estimated.
     """
 
@@ -102,11 +103,12 @@ class DivisionLens:
     centre: np.ndarray
     scale: float
     lam2: float = 0.0
+    lam3: float = 0.0
     significance: float = float("inf")
 
     def _factor(self, d: np.ndarray) -> np.ndarray:
         r2 = (d * d).sum(axis=1, keepdims=True) / self.scale**2
-        return 1.0 + self.lam * r2 + self.lam2 * r2 * r2
+        return 1.0 + r2 * (self.lam + r2 * (self.lam2 + r2 * self.lam3))
 
     def undistort(self, pts_px: np.ndarray) -> np.ndarray:
         """(N, 2) image pixels -> (N, 2) straightened pixels."""
@@ -116,15 +118,15 @@ class DivisionLens:
     def distort(self, pts_px: np.ndarray) -> np.ndarray:
         """(N, 2) straightened pixels -> (N, 2) image pixels.
 
-        Newton's method on the radius: ``r_d = r_u (1 + lam r_d^2 + lam2 r_d^4)``.
+        Newton's method on the radius: ``r_d = r_u (1 + lam r_d^2 + lam2 r_d^4 + lam3 r_d^6)``.
         """
         du = np.asarray(pts_px, dtype=np.float64).reshape(-1, 2) - self.centre
         ru = np.hypot(du[:, 0], du[:, 1]) / self.scale
         rd = ru.copy()
         for _ in range(20):
             r2 = rd * rd
-            g = rd - ru * (1.0 + self.lam * r2 + self.lam2 * r2 * r2)
-            dg = 1.0 - ru * rd * (2.0 * self.lam + 4.0 * self.lam2 * r2)
+            g = rd - ru * (1.0 + r2 * (self.lam + r2 * (self.lam2 + r2 * self.lam3)))
+            dg = 1.0 - ru * rd * (2.0 * self.lam + r2 * (4.0 * self.lam2 + 6.0 * self.lam3 * r2))
             with np.errstate(all="ignore"):
                 step = g / dg
             step = np.nan_to_num(step)
@@ -146,18 +148,18 @@ class LensPool:
     a change of image size resets it by itself.
 
     Attributes:
-        info: (2, 2) summed information about (lam, lam2).
+        info: (3, 3) summed information about (lam, lam2, lam3).
         info_theta: (2,) summed information-weighted estimates.
         shape: (height, width) of the images pooled so far.
     """
 
     def __init__(self) -> None:
-        self.info = np.zeros((2, 2))
-        self.info_theta = np.zeros(2)
+        self.info = np.zeros((3, 3))
+        self.info_theta = np.zeros(3)
         self.shape: tuple[int, ...] = ()
 
     def reset(self, shape: tuple[int, ...] = ()) -> None:
         """Forget everything (and remember the new image size)."""
-        self.info = np.zeros((2, 2))
-        self.info_theta = np.zeros(2)
+        self.info = np.zeros((3, 3))
+        self.info_theta = np.zeros(3)
         self.shape = shape
