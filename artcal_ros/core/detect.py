@@ -38,7 +38,7 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect_decode import PatternTable, decode_quads
-from artcal_ros.core.detect_edges import refine_quads
+from artcal_ros.core.detect_edges import refine_quads, same_edges
 from artcal_ros.core.detect_lens import DivisionLens, LensModel, LensPool
 from artcal_ros.core.detect_verify import (
     border_is_dark,
@@ -51,6 +51,7 @@ from artcal_ros.core.detect_verify import (
 )
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import DetectionError
+from artcal_ros.core.homography import shortest_sides
 
 __all__ = ["Detector", "DetectorConfig", "detect", "linearise", "to_gray8"]
 
@@ -261,11 +262,7 @@ class Detector:
             # to them than the distortion it removes)
             if isinstance(fit.lens, DivisionLens) and fit.lens.significance >= 1.0:
                 lens = fit.lens
-            moved = np.abs(fit.corners_px - quads).max(axis=(1, 2))
-            # the quad finder's polygon can be a few pixels off on large, bent markers;
-            # anything further than a tenth of the side is a different edge
-            side = np.linalg.norm(quads - np.roll(quads, -1, axis=1), axis=2).min(axis=1)
-            keep = fit.ok & (moved < np.maximum(3.0, 0.1 * side))
+            keep = fit.ok & same_edges(fit.corners_px, quads)
             # a marker cut by the image edge has no corner there, only the edge
             keep &= _clear_of_edge(fit.corners_px, w, h, 0.5)
             corners, sigma = fit.corners_px[keep], fit.corner_sigma_px[keep]
@@ -304,9 +301,8 @@ class Detector:
         on_board = (ids >= self.board.first_id) & (ids <= int(self.board.ids[-1]))
         quads, ids = quads[on_board], ids[on_board]
         if self.config.decode_rejected and rejected is not None and len(rejected):
-            rq = np.asarray(rejected, dtype=np.float64).reshape(-1, 4, 2)
-            sides = np.linalg.norm(rq - np.roll(rq, -1, axis=1), axis=2).min(axis=1)
-            rq = rq[sides >= self.config.min_side_px]
+            found = np.asarray(rejected, dtype=np.float64).reshape(-1, 4, 2)
+            rq = found[shortest_sides(found) >= self.config.min_side_px]
             dq, dids, taken, err = decode_quads(lin, rq, self._patterns)
             # near misses: re-read on quads refined from their edges
             near = (err > 2) & (err <= 10)
@@ -316,9 +312,7 @@ class Detector:
                 dark = border_is_dark(lin, nq, self.board.bits)
                 fit = refine_quads(lin, nq, dark, self.board.bits, allow_curvature=False,
                                    passes=1)
-                nside = np.linalg.norm(nq - np.roll(nq, -1, axis=1), axis=2).min(axis=1)
-                good = fit.ok & (np.abs(fit.corners_px - nq).max(axis=(1, 2))
-                                 < np.maximum(3.0, 0.1 * nside))
+                good = fit.ok & same_edges(fit.corners_px, nq)
                 rq2, rids2, _, _ = decode_quads(lin, fit.corners_px[good], self._patterns,
                                                 grow_px=0.0)
                 dq = np.concatenate([dq, rq2])
@@ -329,8 +323,7 @@ class Detector:
         uniq, counts = np.unique(ids, return_counts=True)
         single = np.isin(ids, uniq[counts == 1])
         quads, ids = quads[single], ids[single]
-        sides = np.linalg.norm(quads - np.roll(quads, -1, axis=1), axis=2).min(axis=1)
-        big = sides >= self.config.min_side_px
+        big = shortest_sides(quads) >= self.config.min_side_px
         return quads[big], ids[big]
 
 

@@ -39,7 +39,7 @@ import numpy as np
 
 from artcal_ros.core.detect_lens import DivisionLens, LensModel, LensPool
 from artcal_ros.core.detect_model import fit_step_model, phi_cdf, side_median, side_slots
-from artcal_ros.core.homography import apply_h, module_homographies
+from artcal_ros.core.homography import module_homographies, shortest_sides
 
 _STEP = 0.25  # profile sample spacing, pixels
 
@@ -339,10 +339,7 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
     # from the quad those lines give: the quad finder's corners can be a pixel or two
     # off, which puts the margins (and the model's code cells) in the wrong place
     coarse, _ = _intersect(model, a, u, n, M)
-    moved = np.abs(coarse - quads).max(axis=(1, 2))
-    good = np.isfinite(coarse).all(axis=(1, 2)) & (
-        moved < np.maximum(3.0, 0.1 * length0.reshape(M, 4).min(axis=1)))
-    quads = np.where(good[:, None, None], coarse, quads)
+    quads = np.where(same_edges(coarse, quads)[:, None, None], coarse, quads)
     model, t, present, a, u, n = _coarse_lines(lin, quads, sign, np.full(4 * M, -1.0),
                                                np.full(4 * M, 1.0), margin_px, max_profiles)
     length = model.length
@@ -363,7 +360,7 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
                                  inner_same, quiet_modules, passes, order, None, margin_px,
                                  None if later else outer_same, beyond_modules)
         valid = present
-        if lens is None and allow_curvature:
+        if later:
             used_lens = _estimate_division(model, quads, t, valid, lin.shape, pool=lens_pool)
         if used_lens is not None:
             model.order = np.full(S, 3)
@@ -391,6 +388,17 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
     ok = side_ok.reshape(M, 4).all(axis=1) & np.isfinite(corners).all(axis=(1, 2))
     return EdgeFit(corners, sigma, model.rms.reshape(M, 4), contrast.reshape(M, 4), ok,
                    used_lens)
+
+
+def same_edges(new: np.ndarray, old: np.ndarray) -> np.ndarray:
+    """(M,) bool: refined quads (M, 4, 2) still on the edges of the quads they came from.
+
+    The quad finder's polygon can be a few pixels off on large, bent markers;
+    a corner that moved further than 3 px and a tenth of the shortest side has
+    found a different edge (NaN corners fail too).
+    """
+    moved = np.abs(new - old).max(axis=(1, 2))
+    return np.asarray(moved < np.maximum(3.0, 0.1 * shortest_sides(old)))
 
 
 def _coarse_lines(lin: np.ndarray, quads: np.ndarray, sign: np.ndarray, lo: np.ndarray,
@@ -507,7 +515,9 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         corners[bad] = quads[bad]
         s0 = model.offset(t)
         base = a[:, None, :] + t[..., None] * u[:, None, :] + s0[..., None] * n[:, None, :]
-        _, m_px = _module_geometry(corners, base, n, bits)
+        _, m_px = _module_geometry_at(corners, base.reshape(-1, 2),
+                                      np.repeat(np.arange(S), base.shape[1]), n, bits)
+        m_px = m_px.reshape(base.shape[:2])
         psid = np.nonzero(present)[0]
         pslot, pP = side_slots(psid, S)
         m_med = np.nan_to_num(side_median(m_px[present], np.ones(len(psid), bool), psid,
@@ -581,15 +591,9 @@ def _clear_of_neighbours(corners: np.ndarray, px: np.ndarray, py: np.ndarray,
         corners: (M, 4, 2) current quads; side k runs from corner k to k+1.
         px, py: (S, ...) point coordinates, S = 4 M, grouped by side.
     """
+    start, _, outward, _ = _side_frames(corners)
     M = len(corners)
-    start = corners
-    end = np.roll(corners, -1, axis=1)
-    d = end - start
-    inward = np.stack([-d[..., 1], d[..., 0]], axis=-1)
-    inward /= np.maximum(np.linalg.norm(inward, axis=-1, keepdims=True), 1e-12)
-    centre = corners.mean(axis=1, keepdims=True)
-    flip = np.einsum("mkd,mkd->mk", centre - start, inward) < 0
-    inward[flip] *= -1.0
+    start, inward = start.reshape(M, 4, 2), -outward.reshape(M, 4, 2)
     extra = (1,) * (px.ndim - 1)
     ok = np.ones(px.shape, dtype=bool)
     for shift in (-1, 1):  # the previous and the next side
@@ -599,7 +603,6 @@ def _clear_of_neighbours(corners: np.ndarray, px: np.ndarray, py: np.ndarray,
                 + (py - p0[:, 1].reshape(-1, *extra)) * nin[:, 1].reshape(-1, *extra))
         ok &= dist >= clear
     return ok
-
 
 def _lens_bend(lens: LensModel | DivisionLens, a: np.ndarray, u: np.ndarray, n: np.ndarray,
                length: np.ndarray) -> np.ndarray:
@@ -618,37 +621,16 @@ def _lens_bend(lens: LensModel | DivisionLens, a: np.ndarray, u: np.ndarray, n: 
     return -np.nan_to_num(sag)
 
 
-def _module_geometry(corners: np.ndarray, base: np.ndarray, n: np.ndarray,
-                     bits: int) -> tuple[np.ndarray, np.ndarray]:
-    """Along-side position (in modules, 0..bits+2) and local module width (pixels).
-
-    Args:
-        corners: (M, 4, 2) current quads.
-        base: (S, K, 2) profile base points on the edge.
-        n: (S, 2) outward normals.
-    """
-    M = len(corners)
-    S, K, _ = base.shape
-    size = bits + 2.0
-    H = module_homographies(corners, bits)
-    Hinv = np.linalg.inv(H)
-    pts = base.reshape(M, 4 * K, 2)
-    mod = apply_h(Hinv, pts).reshape(S, K, 2)
-    inward = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
-    inward_s = np.tile(inward, (M, 1))
-    inner = apply_h(H, (mod + inward_s[:, None, :]).reshape(M, 4 * K, 2)).reshape(S, K, 2)
-    m_px = np.einsum("skd,sd->sk", base - inner, n)
-    side = np.arange(S) % 4
-    along = np.where((side % 2 == 0)[:, None], mod[..., 0], mod[..., 1])
-    along = np.where((side >= 2)[:, None], size - along, along)  # in side direction
-    return along, np.clip(m_px, 0.5, None)
-
-
 def _module_geometry_at(corners: np.ndarray, pts: np.ndarray, side: np.ndarray,
                         n: np.ndarray, bits: int,
                         lens: LensModel | DivisionLens | None = None
                         ) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`_module_geometry` for flat points: pts (N, 2) of sides ``side`` (N,).
+    """Along-side position (in modules, 0..bits+2) and local module width (pixels).
+
+    Args:
+        corners: (M, 4, 2) current quads.
+        pts: (N, 2) image points, each belonging to side ``side`` (N,) of a marker.
+        n: (S, 2) outward normals.
 
     With a lens the marker's homography is taken between undistorted pixels, so
     the code cells land where the lens puts them (near the corners of a strongly
@@ -834,7 +816,7 @@ def _division(theta: np.ndarray, centre: np.ndarray, scale: float) -> DivisionLe
 
 
 def _estimate_division(model: _SideModel, quads: np.ndarray, t: np.ndarray,
-                       valid: np.ndarray, shape: tuple[int, ...], min_sigmas: float = 0.0,
+                       valid: np.ndarray, shape: tuple[int, ...],
                        pool: LensPool | None = None) -> DivisionLens | None:
     """Plumb-line estimate of a division-model lens from all sides' curvature.
 
@@ -843,7 +825,8 @@ def _estimate_division(model: _SideModel, quads: np.ndarray, t: np.ndarray,
     order, linear in the division parameters; weighted least squares (three
     Gauss-Newton steps, weak zero-mean priors that shrink poorly determined
     parameters towards no distortion) gives them. Returns None without enough
-    curved sides, or when the r^2 term is below ``min_sigmas`` standard deviations.
+    curved sides or with an implausible estimate; the result's ``significance``
+    says how well the r^2 term is determined.
     With a ``pool``, earlier frames' evidence joins the fit and this frame's is added.
     """
     if pool is not None and pool.shape != tuple(shape[:2]):
@@ -891,7 +874,6 @@ def _estimate_division(model: _SideModel, quads: np.ndarray, t: np.ndarray,
         pool.info_theta = pool.info_theta + own_info @ theta - own_grad
     lam, lam2, lam3 = float(theta[0]), float(theta[1]), float(theta[2])
     sd = float(np.sqrt(max(np.linalg.inv(info)[0, 0], 1e-30)))
-    if not np.isfinite(theta).all() or abs(lam) < min_sigmas * sd or abs(lam) > 1.0 \
-            or abs(lam2) > 1.0 or abs(lam3) > 1.0:
+    if not np.isfinite(theta).all() or abs(lam) > 1.0 or abs(lam2) > 1.0 or abs(lam3) > 1.0:
         return None
     return DivisionLens(lam, centre, scale, lam2, lam3, abs(lam) / sd)

@@ -17,7 +17,7 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect_edges import bilinear
 from artcal_ros.core.detect_lens import DivisionLens, LensModel
-from artcal_ros.core.homography import apply_h, homographies, module_homographies
+from artcal_ros.core.homography import apply_h, homographies, module_homographies, shortest_sides
 
 
 def _ring(s: np.ndarray, near: float, far: float) -> np.ndarray:
@@ -67,13 +67,13 @@ def sides_are_edges(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, bits
     seen = np.zeros((M, 4))
     # outside: half a module, but no further than 1.5 px (a marker close to the
     # image edge keeps its quiet zone's first pixels in view)
-    module_px = np.linalg.norm(corners - np.roll(corners, -1, axis=1), axis=2).min(axis=1) / n
+    module_px = shortest_sides(corners) / n
     out_mod = np.minimum(0.5, 1.5 / np.maximum(module_px, 1e-6))
     for k in range(4):
         c = np.full_like(s, fixed[k] + 0.5 * inward[k])
         inner = np.c_[s, c] if horizontal[k] else np.c_[c, s]
         pin = apply_h(H, np.broadcast_to(inner, (M, *inner.shape)))
-        c_out = fixed[k] - out_mod[:, None] * inward[k] + 0.0 * s[None, :]
+        c_out = np.repeat((fixed[k] - out_mod * inward[k])[:, None], len(s), axis=1)
         s_b = np.broadcast_to(s, c_out.shape)
         outer = np.stack([s_b, c_out] if horizontal[k] else [c_out, s_b], axis=-1)
         pout = apply_h(H, outer)

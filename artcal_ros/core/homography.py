@@ -41,6 +41,11 @@ def apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
         return np.stack([X / W, Y / W], axis=-1)
 
 
+def shortest_sides(quads: np.ndarray) -> np.ndarray:
+    """(M,) length of each quad's shortest side, pixels (quads (M, 4, 2))."""
+    return np.asarray(np.linalg.norm(quads - np.roll(quads, -1, axis=1), axis=2).min(axis=1))
+
+
 def module_homographies(corners: np.ndarray, bits: int) -> np.ndarray:
     """(M, 3, 3) maps from module coordinates (0..bits+2, x right, y down) to the image.
 
