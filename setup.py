@@ -30,7 +30,7 @@ setup(
         "console_scripts": [
             f"calibrator = {PACKAGE}.ros.calibrator:main",
             f"replay = {PACKAGE}.ros.replay:main",
-            f"artcal = {PACKAGE}.cli:main",
+            f"artcal = {PACKAGE}.cli.main:main",
         ],
     },
 )

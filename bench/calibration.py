@@ -34,12 +34,12 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate import calibrate
-from artcal_ros.core.calibrate_quality import projection_difference
+from artcal_ros.core.calibrate.quality import projection_difference
 from artcal_ros.core.detect import Detector
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import CalibrationError
-from artcal_ros.core.synth import Camera, Photometry, random_poses, render_view
-from artcal_ros.core.synth_poses import marker_truth
+from artcal_ros.synth import Camera, Photometry, random_poses, render_view
+from artcal_ros.synth.poses import marker_truth
 
 ROOT = Path(__file__).resolve().parents[1]
 BOARD = Board()
@@ -201,10 +201,10 @@ def detect_all_frames(bag: Path, cache: Path, frames: int = 2000, workers: int =
 
 def bag_benchmark(work: Path) -> dict[str, Any]:
     """Section 3: a 2,000-frame bag, the command's wall time and accuracy vs every frame."""
-    from artcal_ros.commands import calibrate as command
-    from artcal_ros.commands.synth import write_dataset
-    from artcal_ros.core.calibrate_solve import bundle_adjust, free_parameters
-    from artcal_ros.core.calibrate_views import (
+    from artcal_ros.cli import calibrate as command
+    from artcal_ros.cli.synth import write_dataset
+    from artcal_ros.core.calibrate.solve import bundle_adjust, free_parameters
+    from artcal_ros.core.calibrate.views import (
         lens_corrected_centres,
         view_points,
         view_problem,

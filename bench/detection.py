@@ -34,8 +34,8 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector
-from artcal_ros.core.detect_verify import diagonal_centres
-from artcal_ros.core.synth import Camera, Photometry, random_poses, render_view
+from artcal_ros.core.detect.verify import diagonal_centres
+from artcal_ros.synth import Camera, Photometry, random_poses, render_view
 
 CAMERA = "webcam"
 CONDITIONS: dict[str, Photometry] = {

@@ -37,6 +37,7 @@ from sensor_msgs.srv import SetCameraInfo
 from std_srvs.srv import Trigger
 
 from artcal_ros.core.board import Board
+from artcal_ros.core.calibrate.session import SolveOutcome, busy_threads, run_solve
 from artcal_ros.core.coverage import CoverageConfig, ViewCollector
 from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
 from artcal_ros.core.overlay import render_heat_map, render_overlay
@@ -45,7 +46,6 @@ from artcal_ros.ros import msgs
 from artcal_ros.ros.diagnostics import Counters, diagnostic_array
 from artcal_ros.ros.latest import LatestWorker
 from artcal_ros.ros.parameters import check_update, declare_parameters
-from artcal_ros.ros.solve import SolveOutcome, busy_threads, run_solve
 
 IMAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                        reliability=ReliabilityPolicy.BEST_EFFORT,

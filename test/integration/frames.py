@@ -37,8 +37,8 @@ def _render_bag(out: Path, n: int = 14, seed: int = 7) -> None:
     from artcal_ros.bag import BagWriter
     from artcal_ros.core.board import Board
     from artcal_ros.core.images import numpy_to_image
-    from artcal_ros.core.synth import Camera, Photometry, random_poses, render_view
-    from artcal_ros.core.synth_truth import frame_record, write_truth
+    from artcal_ros.synth import Camera, Photometry, random_poses, render_view
+    from artcal_ros.synth.truth import frame_record, write_truth
 
     board = Board()
     cam = Camera.preset("webcam")
@@ -61,7 +61,7 @@ def _render_bag(out: Path, n: int = 14, seed: int = 7) -> None:
 def calibration_bag(scratch: Path) -> CalibrationBag:
     """bags/sample if it has a truth.json, else a bag rendered into ``scratch``."""
     from artcal_ros.bag import BagReader
-    from artcal_ros.core.synth_truth import load_truth
+    from artcal_ros.synth.truth import load_truth
 
     path = SAMPLE_BAG
     if not (path / "truth.json").is_file():

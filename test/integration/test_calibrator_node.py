@@ -27,7 +27,7 @@ from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from sensor_msgs.srv import SetCameraInfo
 from std_srvs.srv import Trigger
 
-from artcal_ros.core.calibrate_quality import projection_difference
+from artcal_ros.core.calibrate.quality import projection_difference
 from test.integration.frames import CalibrationBag, calibration_bag, image_messages
 from test.integration.ros_harness import (
     ROOT,

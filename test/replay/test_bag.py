@@ -16,8 +16,8 @@ from mcap.records import Chunk, Message
 from mcap.stream_reader import breakup_chunk
 
 from artcal_ros.bag import BagMessage, BagReader, BagWriter
+from artcal_ros.bag.msgdefs import TYPE_HASHES, message_definition
 from artcal_ros.core.errors import BagError
-from artcal_ros.core.msgdefs import TYPE_HASHES, message_definition
 
 IMAGE = "sensor_msgs/msg/Image"
 INFO = "sensor_msgs/msg/CameraInfo"

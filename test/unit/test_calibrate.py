@@ -10,16 +10,16 @@ import cv2
 import numpy as np
 import pytest
 
-from artcal_ros.cli import main
+from artcal_ros.cli.main import main
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate import calibrate
-from artcal_ros.core.calibrate_quality import projection_difference
-from artcal_ros.core.calibrate_solve import ViewPoints
-from artcal_ros.core.calibrate_views import select_views, view_points
+from artcal_ros.core.calibrate.quality import projection_difference
+from artcal_ros.core.calibrate.solve import ViewPoints
+from artcal_ros.core.calibrate.views import select_views, view_points
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import CalibrationError
-from artcal_ros.core.synth import Camera, Photometry, random_poses, render_view
-from artcal_ros.core.synth_poses import marker_truth, smooth_poses
+from artcal_ros.synth import Camera, Photometry, random_poses, render_view
+from artcal_ros.synth.poses import marker_truth, smooth_poses
 
 BOARD = Board()
 
@@ -220,7 +220,7 @@ def test_summary_and_weak_data_warnings(tmp_path: Path) -> None:
     assert set(summary["std_devs"]) >= {"fx", "fy", "cx", "cy", "k1", "k2", "p1", "p2"}
     assert "fx" in r.summary_line()
 
-    from artcal_ros.core.calibrate_report import write_plots
+    from artcal_ros.core.calibrate.report import write_plots
 
     for path in write_plots(tmp_path, r):
         image = cv2.imread(str(path))
@@ -281,7 +281,7 @@ def test_cli_calibrates_images_and_writes_report(tmp_path: Path,
 
 
 def test_bag_topic_choice() -> None:
-    from artcal_ros.commands.calibrate import _bag_topic
+    from artcal_ros.cli.calibrate import _bag_topic
     from artcal_ros.core.errors import ParameterError
 
     one = {"/cam/image": "sensor_msgs/msg/CompressedImage", "/tf": "tf2_msgs/msg/TFMessage"}

@@ -17,7 +17,7 @@ from artcal_ros.core.camera_info import (
     write_camera_info_yaml,
 )
 from artcal_ros.core.errors import ArtcalError, CalibrationError
-from artcal_ros.core.synth import Camera
+from artcal_ros.synth import Camera
 
 DATA = Path(__file__).resolve().parents[1] / "data" / "camera_info"
 KEYS = ["image_width", "image_height", "camera_name", "camera_matrix", "distortion_model",

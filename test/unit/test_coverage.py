@@ -13,7 +13,7 @@ from artcal_ros.core.board import Board
 from artcal_ros.core.coverage import CoverageConfig, ViewCollector, empty_regions, view_geometry
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.overlay import render_heat_map, render_overlay
-from artcal_ros.core.synth import Camera, project_points
+from artcal_ros.synth import Camera, project_points
 
 BOARD = Board(cols=8, rows=5)  # 0.62 x 0.38 m
 SIZE = (640, 480)

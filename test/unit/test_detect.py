@@ -13,12 +13,12 @@ import cv2
 import numpy as np
 import pytest
 
-from artcal_ros.cli import main as artcal_main
+from artcal_ros.cli.main import main as artcal_main
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector, DetectorConfig, detect
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import DetectionError
-from artcal_ros.core.synth import Camera, Photometry, RenderedView, random_poses, render_view
+from artcal_ros.synth import Camera, Photometry, RenderedView, random_poses, render_view
 
 CAM = Camera.preset("webcam")
 
@@ -206,7 +206,7 @@ def test_cli_json_overlay_and_unreadable_file(tmp_path: Path, capsys) -> None:
 
 
 def test_lens_models_round_trip() -> None:
-    from artcal_ros.core.detect_lens import DivisionLens, LensModel
+    from artcal_ros.core.detect.lens import DivisionLens, LensModel
 
     pts = np.random.default_rng(3).uniform([0, 0], [640, 480], (50, 2))
     for lens in (LensModel.from_any(CAM), DivisionLens(-0.2, np.array([320.0, 240.0]), 400.0,

@@ -9,10 +9,10 @@ import cv2
 import numpy as np
 import pytest
 
-from artcal_ros.commands import synth as synth_cmd
+from artcal_ros.cli import synth as synth_cmd
 from artcal_ros.core.board import Board
 from artcal_ros.core.errors import ArtcalError, ParameterError
-from artcal_ros.core.synth import (
+from artcal_ros.synth import (
     PRESETS,
     Camera,
     Photometry,
@@ -24,7 +24,7 @@ from artcal_ros.core.synth import (
     render_linear,
     render_view,
 )
-from artcal_ros.core.synth_photometry import sense_and_encode
+from artcal_ros.synth.photometry import sense_and_encode
 
 RATIONAL = Camera("rational_polynomial",
                   np.array([[650.0, 0, 330.5], [0, 648.0, 241.2], [0, 0, 1]]),
@@ -372,8 +372,8 @@ def test_committed_sample_bag_matches_its_truth() -> None:
 def test_artcal_cli_exit_status(tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
     """Through the real ``artcal`` entry point: success 0, a bad preset 2 with one line."""
     for verb in ("board", "synth", "detect", "calibrate"):
-        pytest.importorskip(f"artcal_ros.commands.{verb}")
-    from artcal_ros.cli import main
+        pytest.importorskip(f"artcal_ros.cli.{verb}")
+    from artcal_ros.cli.main import main
     assert main(["synth", "--camera", "nope", "--frames", "1", "--out", str(tmp_path)]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and "preset" in err[0] and "webcam" in err[0]

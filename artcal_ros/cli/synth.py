@@ -7,7 +7,7 @@
 Without ``--bag``: DIR/frame_0000.png ... and DIR/truth.json. With ``--bag``: DIR is a
 rosbag2 directory (metadata.yaml + .mcap) of sensor_msgs/Image on ``--topic``, with
 DIR/truth.json beside the recording (frames keyed by their stamp). The truth format
-is described in :mod:`artcal_ros.core.synth_truth`.
+is described in :mod:`artcal_ros.synth.truth`.
 """
 
 from __future__ import annotations
@@ -22,10 +22,11 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from artcal_ros.commands.common import add_params_arguments, params_from_args
+from artcal_ros.cli.common import add_params_arguments, params_from_args
+from artcal_ros.cli.progress import Progress
 from artcal_ros.core.board import Board
 from artcal_ros.core.errors import ArtcalError, ParameterError
-from artcal_ros.core.synth import (
+from artcal_ros.synth import (
     ENCODINGS,
     PRESETS,
     Backdrop,
@@ -38,7 +39,6 @@ from artcal_ros.core.synth import (
     smooth_poses,
     write_truth,
 )
-from artcal_ros.progress import Progress
 
 PHOTOMETRIES = ("clean", "harsh", "mixed", "exact")
 # bag time of the first frame: a fixed instant, so a fixed seed gives a byte-identical bag

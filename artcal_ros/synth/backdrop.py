@@ -16,8 +16,8 @@ import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.synth_camera import Camera
-from artcal_ros.core.synth_photometry import clutter_image
+from artcal_ros.synth.camera import Camera
+from artcal_ros.synth.photometry import clutter_image
 
 
 @dataclass(frozen=True, eq=False)

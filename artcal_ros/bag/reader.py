@@ -32,11 +32,10 @@ import yaml
 from mcap.records import Schema
 from mcap_ros2.decoder import DecoderFactory
 
-from artcal_ros.bag_mcap import SQLITE_MAGIC, McapFile
-from artcal_ros.bag_write import BagWriter
+from artcal_ros.bag.mcap_file import SQLITE_MAGIC, McapFile
 from artcal_ros.core.errors import BagError
 
-__all__ = ["BagError", "BagMessage", "BagReader", "BagWriter"]
+__all__ = ["BagMessage", "BagReader"]
 
 
 @dataclass(frozen=True)

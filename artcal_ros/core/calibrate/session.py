@@ -48,7 +48,7 @@ class CancelledError(Exception):
 
 def _solve(views: Sequence[Detections], board: Board, image_size: tuple[int, int],
            params: Mapping[str, Any], stopping: threading.Event) -> Any:
-    from artcal_ros.core.calibrate import calibrate
+    from artcal_ros.core.calibrate.pipeline import calibrate
     from artcal_ros.core.camera_info import write_camera_info_yaml
 
     def progress(_stage: str) -> None:

@@ -5,14 +5,14 @@ Pipeline for one image:
 1. Candidate quads and ids from OpenCV's ArUco detector (both polarities when the
    board has white-on-black markers), run on an 8-bit, contrast-stretched copy.
    The quads it found but could not read are decoded again against the board's
-   own patterns, blur-aware (:mod:`artcal_ros.core.detect_decode`).
+   own patterns, blur-aware (:mod:`artcal_ros.core.detect.decode`).
 2. Only ids on the configured board survive; duplicated ids are dropped.
 3. Each quad is refined from its border edges in linear intensity
-   (:mod:`artcal_ros.core.detect_edges`, :mod:`artcal_ros.core.detect_model`):
+   (:mod:`artcal_ros.core.detect.edges`, :mod:`artcal_ros.core.detect.step_model`):
    a blurred-step model fitted to the raw pixels across every side, sides bent
    by the lens (given, or estimated from the edges and pooled over frames),
    intersected into corners.
-4. Verification (:mod:`artcal_ros.core.detect_verify`): the border's polarity
+4. Verification (:mod:`artcal_ros.core.detect.verify`): the border's polarity
    must match the board, the code re-read on the refined quad must match the id
    (at most 2 wrong cells; none for a marker without neighbours), and the marker
    must sit where its image neighbours say it should on the board. A wrong id
@@ -37,10 +37,10 @@ import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.detect_decode import PatternTable, decode_quads
-from artcal_ros.core.detect_edges import refine_quads, same_edges
-from artcal_ros.core.detect_lens import DivisionLens, LensModel, LensPool
-from artcal_ros.core.detect_verify import (
+from artcal_ros.core.detect.decode import PatternTable, decode_quads
+from artcal_ros.core.detect.edges import refine_quads, same_edges
+from artcal_ros.core.detect.lens import DivisionLens, LensModel, LensPool
+from artcal_ros.core.detect.verify import (
     border_is_dark,
     code_errors,
     diagonal_centres,

@@ -15,8 +15,8 @@ import warnings
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.detect_edges import bilinear
-from artcal_ros.core.detect_lens import DivisionLens, LensModel
+from artcal_ros.core.detect.edges import bilinear
+from artcal_ros.core.detect.lens import DivisionLens, LensModel
 from artcal_ros.core.homography import apply_h, homographies, module_homographies, shortest_sides
 
 
@@ -121,7 +121,7 @@ def outer_neighbours(board: Board, ids: np.ndarray) -> np.ndarray:
 
 
 def _blurred(printed: np.ndarray) -> np.ndarray:
-    from artcal_ros.core.detect_decode import blurred_patterns
+    from artcal_ros.core.detect.decode import blurred_patterns
 
     return blurred_patterns(printed)
 

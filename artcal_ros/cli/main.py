@@ -14,7 +14,7 @@ from collections.abc import Sequence
 
 from artcal_ros.core.errors import ArtcalError, CalibrationError
 
-# verb -> module under artcal_ros.commands with add_arguments(parser) and run(args) -> int
+# verb -> module under artcal_ros.cli with add_arguments(parser) and run(args) -> int
 VERBS = {
     "board": "Render a printable board at exact physical scale (PDF, SVG or PNG).",
     "synth": "Render synthetic frames with exact ground truth (PNGs + truth.json, or a bag).",
@@ -29,7 +29,7 @@ def build_parser() -> argparse.ArgumentParser:
         prog="artcal", description="Camera calibration from self-identifying marker boards.")
     sub = parser.add_subparsers(dest="verb", required=True, metavar="VERB")
     for verb, text in VERBS.items():
-        module = importlib.import_module(f"artcal_ros.commands.{verb}")
+        module = importlib.import_module(f"artcal_ros.cli.{verb}")
         p = sub.add_parser(verb, help=text, description=text)
         module.add_arguments(p)
     return parser
@@ -38,7 +38,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: Sequence[str] | None = None) -> int:
     """Entry point of the ``artcal`` console script."""
     args = build_parser().parse_args(argv)
-    module = importlib.import_module(f"artcal_ros.commands.{args.verb}")
+    module = importlib.import_module(f"artcal_ros.cli.{args.verb}")
     try:
         return int(module.run(args))
     except CalibrationError as e:

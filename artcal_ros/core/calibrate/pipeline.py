@@ -24,14 +24,14 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.calibrate_quality import (
+from artcal_ros.core.calibrate.quality import (
     Camera,
     cross_validate,
     fold_radius_px,
     intrinsic_covariance,
     parameter_effect_px,
 )
-from artcal_ros.core.calibrate_solve import (
+from artcal_ros.core.calibrate.solve import (
     DIST_NAMES,
     MODELS,
     Solution,
@@ -39,7 +39,7 @@ from artcal_ros.core.calibrate_solve import (
     residuals,
     solve,
 )
-from artcal_ros.core.calibrate_views import (
+from artcal_ros.core.calibrate.views import (
     POINTS_MODES,
     check_views,
     layout_outliers,

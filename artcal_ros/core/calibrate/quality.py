@@ -20,7 +20,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from artcal_ros.core.calibrate_solve import (
+from artcal_ros.core.calibrate.solve import (
     DIST_NAMES,
     INTRINSIC_NAMES,
     Solution,

@@ -4,7 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from artcal_ros.core.calibrate_model import (
+from artcal_ros.core.calibrate.model import (
     DIST_NAMES,
     INTRINSIC_NAMES,
     ViewPoints,

@@ -22,14 +22,14 @@ from typing import Any
 
 import numpy as np
 
-from artcal_ros.commands.common import add_params_arguments, params_from_args
+from artcal_ros.cli.common import add_params_arguments, params_from_args
+from artcal_ros.cli.progress import Progress
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate import CalibrationResult, calibrate
 from artcal_ros.core.camera_info import write_camera_info_yaml
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
 from artcal_ros.core.params import output_path
-from artcal_ros.progress import Progress
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 DEFAULT_TOPIC = "/camera/image_raw"
@@ -233,7 +233,7 @@ def run(args: argparse.Namespace) -> int:
 
 def write_report(directory: Path, result: CalibrationResult, dets: list[Detections]) -> None:
     """summary.json and the PNG plots into ``directory``."""
-    from artcal_ros.core.calibrate_report import write_plots
+    from artcal_ros.core.calibrate.report import write_plots
 
     try:
         directory.mkdir(parents=True, exist_ok=True)

@@ -25,12 +25,12 @@ from mcap.writer import CompressionType
 from mcap.writer import Writer as McapWriter
 from mcap_ros2._dynamic import serialize_dynamic
 
-from artcal_ros.core.errors import BagError
-from artcal_ros.core.msgdefs import (
+from artcal_ros.bag.msgdefs import (
     MessageDefinition,
     message_definition,
     normalize_type_name,
 )
+from artcal_ros.core.errors import BagError
 
 METADATA_VERSION = 9
 ROS_DISTRO = "kilted"

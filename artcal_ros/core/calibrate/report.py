@@ -14,8 +14,8 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from artcal_ros.core.calibrate import CalibrationResult
-from artcal_ros.core.calibrate_views import COVERAGE_GRID
+from artcal_ros.core.calibrate.pipeline import CalibrationResult
+from artcal_ros.core.calibrate.views import COVERAGE_GRID
 from artcal_ros.core.errors import ArtcalError
 
 _FONT = cv2.FONT_HERSHEY_SIMPLEX

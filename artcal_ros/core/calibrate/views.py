@@ -16,8 +16,8 @@ import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.calibrate_quality import Camera, project_rays, unproject
-from artcal_ros.core.calibrate_solve import ViewPoints
+from artcal_ros.core.calibrate.quality import Camera, project_rays, unproject
+from artcal_ros.core.calibrate.solve import ViewPoints
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import CalibrationError
 

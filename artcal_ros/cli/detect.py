@@ -21,12 +21,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-from artcal_ros.commands.common import add_params_arguments, params_from_args
+from artcal_ros.cli.common import add_params_arguments, params_from_args
+from artcal_ros.cli.progress import Progress
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ImageFormatError, ParameterError
-from artcal_ros.progress import Progress
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

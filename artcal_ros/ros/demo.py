@@ -5,7 +5,7 @@ Starts the calibrator and replay nodes as separate processes on a private DDS do
 collected, calls ``~/calibrate``, and prints the one-line summary, the published
 CameraInfo and the calibration file's path. Nothing is written outside ``--out``.
 
-    python -m artcal_ros.demo [--bag bags/sample] [--out DIR]
+    python -m artcal_ros.ros.demo [--bag bags/sample] [--out DIR]
 """
 
 from __future__ import annotations
@@ -21,7 +21,7 @@ import time
 from pathlib import Path
 from typing import IO, Any
 
-ROOT = Path(__file__).resolve().parents[1]
+ROOT = Path(__file__).resolve().parents[2]
 DEFAULT_BAG = ROOT / "bags" / "sample"
 PARAMS = ROOT / "config" / "calibrator.yaml"
 IMAGE_TYPE = "sensor_msgs/msg/Image"
@@ -83,9 +83,9 @@ def _compare_with_truth(bag: Path, yaml_path: Path) -> None:
     truth_path = bag / "truth.json" if bag.is_dir() else bag.with_name("truth.json")
     if not truth_path.is_file():
         return
-    from artcal_ros.core.calibrate_quality import projection_difference
+    from artcal_ros.core.calibrate.quality import projection_difference
     from artcal_ros.core.camera_info import read_camera_info_yaml
-    from artcal_ros.core.synth_truth import load_truth
+    from artcal_ros.synth.truth import load_truth
 
     truth = load_truth(truth_path).camera
     rms, worst = projection_difference(truth, read_camera_info_yaml(yaml_path))
@@ -183,7 +183,7 @@ def run(bag: Path, out: Path, timeout_s: float, rate: float | None = None) -> in
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``python -m artcal_ros.demo``."""
+    """Entry point of ``python -m artcal_ros.ros.demo``."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
     ap.add_argument("--bag", type=Path, default=DEFAULT_BAG, help="rosbag2 MCAP recording")
     ap.add_argument("--out", type=Path, default=None,

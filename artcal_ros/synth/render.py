@@ -23,7 +23,7 @@ import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.synth_camera import CHUNK, Camera
+from artcal_ros.synth.camera import CHUNK, Camera
 
 # sub-boxes per pixel side where a pattern corner sits in the pixel
 CORNER_SUPERSAMPLE = 4

@@ -16,8 +16,8 @@ from __future__ import annotations
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.detect_edges import bilinear
-from artcal_ros.core.detect_verify import border_is_dark
+from artcal_ros.core.detect.edges import bilinear
+from artcal_ros.core.detect.verify import border_is_dark
 from artcal_ros.core.homography import apply_h, homographies
 
 

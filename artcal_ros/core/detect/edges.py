@@ -13,7 +13,7 @@ encoded image sits toward the dark side. The caller passes a linearised image.
 
 Two estimators:
 
-- ``model`` (the default, :mod:`artcal_ros.core.detect_model`): the raw pixels
+- ``model`` (the default, :mod:`artcal_ros.core.detect.step_model`): the raw pixels
   of a band across each side are fitted with a blurred-step model (the pixel's
   square footprint, a Gaussian blur per side, the code cells behind the border
   from the decoded id). Sides are then, with a lens given or estimated from the
@@ -37,8 +37,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from artcal_ros.core.detect_lens import DivisionLens, LensModel, LensPool
-from artcal_ros.core.detect_model import fit_step_model, phi_cdf, side_median, side_slots
+from artcal_ros.core.detect.lens import DivisionLens, LensModel, LensPool
+from artcal_ros.core.detect.step_model import fit_step_model, phi_cdf, side_median, side_slots
 from artcal_ros.core.homography import module_homographies, shortest_sides
 
 _STEP = 0.25  # profile sample spacing, pixels

@@ -2,7 +2,7 @@
 
 Every solve here is a plain least-squares fit of the points it is given; choosing the
 points (outliers, views) is the caller's job. The model primitives live in
-:mod:`artcal_ros.core.calibrate_model` and are re-exported here.
+:mod:`artcal_ros.core.calibrate.model` and are re-exported here.
 """
 
 from __future__ import annotations
@@ -12,8 +12,8 @@ from typing import Any
 import cv2
 import numpy as np
 
-from artcal_ros.core.calibrate_lm import bundle_adjust, point_weights
-from artcal_ros.core.calibrate_model import (
+from artcal_ros.core.calibrate.lm import bundle_adjust, point_weights
+from artcal_ros.core.calibrate.model import (
     DIST_NAMES,
     INTRINSIC_NAMES,
     MODELS,

@@ -18,7 +18,7 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.errors import ParameterError
-from artcal_ros.core.synth_camera import Camera, field_radius, project_points
+from artcal_ros.synth.camera import Camera, field_radius, project_points
 
 Pose = tuple[np.ndarray, np.ndarray]
 

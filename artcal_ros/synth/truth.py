@@ -29,7 +29,7 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError
-from artcal_ros.core.synth_camera import Camera
+from artcal_ros.synth.camera import Camera
 
 _DECIMALS = 7
 

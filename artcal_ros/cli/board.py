@@ -13,7 +13,7 @@ from __future__ import annotations
 
 import argparse
 
-from artcal_ros.commands.common import add_params_arguments, params_from_args
+from artcal_ros.cli.common import add_params_arguments, params_from_args
 from artcal_ros.core.board import Board
 from artcal_ros.core.printable import PAPERS, write_printable
 
