@@ -34,7 +34,7 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector
-from artcal_ros.core.detect.verify import diagonal_centres
+from artcal_ros.core.detect.centers import diagonal_centers
 from artcal_ros.synth import Camera, Photometry, random_poses, render_view
 
 CAMERA = "webcam"
@@ -89,27 +89,27 @@ class Tally:
     """Accumulated errors and counts of one method under one condition."""
 
     corner_err: list[np.ndarray] = field(default_factory=list)
-    centre_err: list[np.ndarray] = field(default_factory=list)
+    center_err: list[np.ndarray] = field(default_factory=list)
     wanted: int = 0
     found: int = 0
     wrong_ids: int = 0
     cut: int = 0
 
     def add(self, view: object, ids: np.ndarray, corners: np.ndarray, board: Board,
-            centres: np.ndarray | None = None) -> None:
+            centers: np.ndarray | None = None) -> None:
         """Score one frame's detections against the view's truth."""
         truth_corners = view.corners_px  # type: ignore[attr-defined]
-        truth_centres = view.centers_px  # type: ignore[attr-defined]
+        truth_centers = view.centers_px  # type: ignore[attr-defined]
         inside = view.inside  # type: ignore[attr-defined]
         side = view.side_px  # type: ignore[attr-defined]
         on_board = (ids >= board.first_id) & (ids <= int(board.ids[-1]))
         ids, corners = ids[on_board], corners[on_board]
         _, first = np.unique(ids, return_index=True)
         ids, corners = ids[first], corners[first]
-        if centres is None:
-            centres = diagonal_centres(corners, np.zeros((len(ids), 4)), None)[0]
+        if centers is None:
+            centers = diagonal_centers(corners, np.zeros((len(ids), 4)), None)[0]
         else:
-            centres = centres[on_board][first]
+            centers = centers[on_board][first]
         k = ids - board.first_id
         err = np.linalg.norm(corners - truth_corners[k], axis=2)
         # a wrong id: reported more than half a marker side from where that marker is
@@ -120,7 +120,7 @@ class Tally:
         self.cut += int((~inside[k] & ~bad).sum())
         good = inside[k] & (side[k] >= 20) & ~bad
         self.corner_err.append(err[good].ravel())
-        self.centre_err.append(np.linalg.norm(centres[good] - truth_centres[k][good], axis=1))
+        self.center_err.append(np.linalg.norm(centers[good] - truth_centers[k][good], axis=1))
         want = inside & (side >= 15)
         self.wanted += int(want.sum())
         self.found += int((want & np.isin(np.arange(len(inside)) + board.first_id,
@@ -129,14 +129,14 @@ class Tally:
     def row(self) -> dict[str, float]:
         """RMS / p95 / max corner error, RMS centre error (pixels), recall (%)."""
         e = np.concatenate(self.corner_err) if self.corner_err else np.zeros(0)
-        c = np.concatenate(self.centre_err) if self.centre_err else np.zeros(0)
+        c = np.concatenate(self.center_err) if self.center_err else np.zeros(0)
         if len(e) == 0:
             e = np.array([np.nan])
         if len(c) == 0:
             c = np.array([np.nan])
         return {"n": float(len(e)), "rms": float(np.sqrt(np.mean(e**2))),
                 "p95": float(np.percentile(e, 95)), "max": float(np.max(e)),
-                "centre_rms": float(np.sqrt(np.mean(c**2))), "centre_max": float(np.max(c)),
+                "center_rms": float(np.sqrt(np.mean(c**2))), "center_max": float(np.max(c)),
                 "recall": 100.0 * self.found / max(self.wanted, 1)}
 
 
@@ -264,8 +264,8 @@ def main() -> None:
         for name in METHODS:
             r = tallies[name].row()
             print(f"| {cond} | {pol} | {name} | {int(r['n'])} | {r['rms']:.4f} | "
-                  f"{r['p95']:.4f} | {r['max']:.4f} | {r['centre_rms']:.4f} | "
-                  f"{r['centre_max']:.4f} | {r['recall']:.1f} |")
+                  f"{r['p95']:.4f} | {r['max']:.4f} | {r['center_rms']:.4f} | "
+                  f"{r['center_max']:.4f} | {r['recall']:.1f} |")
     jit = jitter(10 if args.quick else 30, seed + 7)
     print("\n## Jitter (same pose, independent noise; corner std, RMS over corners, px)\n")
     print("| method | corner std |")

@@ -180,7 +180,7 @@ def charuco_saddles(image: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
             np.asarray(corners, np.float64).reshape(-1, 2) - 0.5)
 
 
-def diagonal_centres(corners: np.ndarray) -> np.ndarray:
+def diagonal_centers(corners: np.ndarray) -> np.ndarray:
     """(N, 2): intersection of each quad's diagonals (the image of the square's centre)."""
     h = np.concatenate([corners, np.ones((len(corners), 4, 1))], axis=2)
     c = np.cross(np.cross(h[:, 0], h[:, 2]), np.cross(h[:, 1], h[:, 3]))
@@ -205,7 +205,7 @@ def calibrate_markers(views: list[Markers], use: str) -> dict[str, Any]:
         o = table[ids]
         if use == "centers":
             obj.append(o.mean(axis=1))
-            img.append(diagonal_centres(corners))
+            img.append(diagonal_centers(corners))
         else:
             obj.append(o.reshape(-1, 3))
             img.append(corners.reshape(-1, 2))
@@ -262,7 +262,7 @@ def rms_at(views: list[Markers], use: str, cal: dict[str, Any]) -> float:
     for ids, corners in views:
         o = table[ids]
         obj = o.mean(axis=1) if use == "centers" else o.reshape(-1, 3)
-        img = diagonal_centres(corners) if use == "centers" else corners.reshape(-1, 2)
+        img = diagonal_centers(corners) if use == "centers" else corners.reshape(-1, 2)
         _, rvec, tvec = cv2.solvePnP(obj, img, cal["K"], cal["dist"],
                                      flags=cv2.SOLVEPNP_ITERATIVE)
         proj, _ = cv2.projectPoints(obj, rvec, tvec, cal["K"], cal["dist"])

@@ -32,18 +32,18 @@ def _views(board: Board, n: int, seed: int, phot: Photometry, *, partial: float 
 
 def _score(views: list[RenderedView], dets: list[Detections], board: Board
            ) -> tuple[np.ndarray, np.ndarray, float]:
-    """Corner errors, centre errors (markers >= 20 px) and recall (inside, >= 15 px)."""
-    corner, centre, want, found = [], [], 0, 0
+    """Corner errors, center errors (markers >= 20 px) and recall (inside, >= 15 px)."""
+    corner, center, want, found = [], [], 0, 0
     for v, d in zip(views, dets, strict=True):
         k = d.ids - board.first_id
         assert v.inside[k].all(), "a marker not fully in the image was reported"
         good = v.side_px[k] >= 20
         corner.append(np.linalg.norm(d.corners_px - v.corners_px[k], axis=2)[good].ravel())
-        centre.append(np.linalg.norm(d.centers_px - v.centers_px[k], axis=1)[good])
+        center.append(np.linalg.norm(d.centers_px - v.centers_px[k], axis=1)[good])
         w = v.inside & (v.side_px >= 15)
         want += int(w.sum())
         found += int((w & np.isin(v.ids, d.ids)).sum())
-    return np.concatenate(corner), np.concatenate(centre), found / max(want, 1)
+    return np.concatenate(corner), np.concatenate(center), found / max(want, 1)
 
 
 def _rms(x: np.ndarray) -> float:
@@ -58,13 +58,13 @@ def clean_set() -> tuple[Board, list[RenderedView], list[Detections]]:
     return board, views, [det.detect(v.image) for v in views]
 
 
-def test_clean_corners_and_centres_are_accurate(clean_set) -> None:
+def test_clean_corners_and_centers_are_accurate(clean_set) -> None:
     board, views, dets = clean_set
-    corner, centre, recall = _score(views, dets, board)
+    corner, center, recall = _score(views, dets, board)
     assert len(corner) > 100
     assert _rms(corner) < 0.045
     assert np.percentile(corner, 95) < 0.09
-    assert _rms(centre) < 0.045
+    assert _rms(center) < 0.045
     assert recall >= 0.99
     # every reported sigma is a positive, plausible number of the right order
     sig = np.concatenate([d.corner_sigma_px.ravel() for d in dets])
@@ -93,9 +93,9 @@ def test_noisy_blurred_corners() -> None:
     phot = Photometry(defocus_px=1.8, full_well=1500.0, read_noise=12.0)
     views = _views(board, 2, 777, phot)
     det = Detector(board)
-    corner, centre, recall = _score(views, [det.detect(v.image) for v in views], board)
+    corner, center, recall = _score(views, [det.detect(v.image) for v in views], board)
     assert _rms(corner) < 0.10
-    assert _rms(centre) < 0.10
+    assert _rms(center) < 0.10
     # small markers under this much blur lose their code cells: recall ~96 % (bench/)
     assert recall >= 0.94
 
@@ -123,10 +123,10 @@ def test_white_borders_as_accurate_as_black_under_defocus() -> None:
         board = Board(polarity=polarity)
         view = render_view(board, CAM, rvec, tvec, photometry=phot,
                            rng=np.random.default_rng(1))
-        corner, centre, recall = _score([view], [detect(view.image, board)], board)
+        corner, center, recall = _score([view], [detect(view.image, board)], board)
         assert len(corner) > 40 and recall >= 0.98
         rms[polarity] = _rms(corner)
-        assert _rms(centre) < 0.035, polarity
+        assert _rms(center) < 0.035, polarity
     assert rms["black"] < 0.035
     assert rms["white"] < 1.3 * rms["black"] + 0.003, rms
 
@@ -162,10 +162,10 @@ def test_second_pass_with_the_camera_model_and_16_bit_input() -> None:
     board = Board()
     views = _views(board, 1, 8080, Photometry.clean(), partial=0.0, encoding="mono16")
     det = Detector(board, DetectorConfig(gamma_16bit=2.2))
-    corner, centre, recall = _score(views, [det.detect(views[0].image, camera=CAM)], board)
+    corner, center, recall = _score(views, [det.detect(views[0].image, camera=CAM)], board)
     assert recall >= 0.98
     assert _rms(corner) < 0.045
-    assert _rms(centre) < 0.045
+    assert _rms(center) < 0.045
 
 
 def test_colour_input_and_bad_input() -> None:
@@ -206,12 +206,12 @@ def test_cli_json_overlay_and_unreadable_file(tmp_path: Path, capsys) -> None:
 
 
 def test_lens_models_round_trip() -> None:
-    from artcal_ros.core.detect.lens import DivisionLens, LensModel
+    from artcal_ros.core.detect.lens import DivisionLens, known_lens
 
     pts = np.random.default_rng(3).uniform([0, 0], [640, 480], (50, 2))
-    for lens in (LensModel.from_any(CAM), DivisionLens(-0.2, np.array([320.0, 240.0]), 400.0,
+    for lens in (known_lens(CAM), DivisionLens(-0.2, np.array([320.0, 240.0]), 400.0,
                                                        0.03)):
         back = lens.distort(lens.undistort(pts))
         assert np.abs(back - pts).max() < 1e-6
     with pytest.raises(DetectionError, match="camera"):
-        LensModel.from_any(object())
+        known_lens(object())  # type: ignore[arg-type]

@@ -16,9 +16,17 @@ from __future__ import annotations
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.detect.edges import bilinear
-from artcal_ros.core.detect.verify import border_is_dark
-from artcal_ros.core.homography import apply_h, homographies
+from artcal_ros.core.detect.patterns import blurred_patterns
+from artcal_ros.core.detect.sampling import (
+    border_is_dark,
+    cell_means,
+    module_grid,
+    ring_median,
+    ring_points,
+)
+from artcal_ros.core.homography import module_homographies
+
+__all__ = ["PatternTable", "blurred_patterns", "decode_quads"]
 
 
 class PatternTable:
@@ -40,48 +48,12 @@ class PatternTable:
         self.ids = ids
         self.flat = pats.reshape(len(pats), n * n).astype(np.float32)
         self.n = n
-        # blurred versions, centred and normalised for correlation: (N * L, n * n)
+        # blurred versions, centered and normalised for correlation: (N * L, n * n)
         blurred = blurred_patterns(pats)  # (N, L, n * n)
         self.levels = blurred.shape[1]
         c = blurred - blurred.mean(axis=2, keepdims=True)
         c /= np.maximum(np.linalg.norm(c, axis=2, keepdims=True), 1e-9)
         self.unit = c.reshape(-1, n * n).astype(np.float32)
-
-
-BLUR_LEVELS = (0.0, 0.08, 0.16, 0.22)
-
-
-def blurred_patterns(pats: np.ndarray) -> np.ndarray:
-    """(P, L, n * n) float: printed patterns (P, n, n) (True = white) as cell means under blur.
-
-    Each level mixes a cell with its 4 neighbours (weight b) and diagonal ones (b^2),
-    for b in :data:`BLUR_LEVELS`; outside the marker is the quiet zone, the
-    opposite of the border's colour.
-    """
-    P, n, _ = pats.shape
-    f = pats.astype(np.float64)
-    surround = 1.0 - f[:, 0, 0]
-    pad = np.empty((P, n + 2, n + 2))
-    pad[:] = surround[:, None, None]
-    pad[:, 1:-1, 1:-1] = f
-    out = np.empty((P, len(BLUR_LEVELS), n * n))
-    for k, b in enumerate(BLUR_LEVELS):
-        centre = 1.0 - 4.0 * b - 4.0 * b * b
-        acc = centre * pad[:, 1:-1, 1:-1]
-        for dy, dx, w in ((-1, 0, b), (1, 0, b), (0, -1, b), (0, 1, b), (-1, -1, b * b),
-                          (-1, 1, b * b), (1, -1, b * b), (1, 1, b * b)):
-            acc = acc + w * pad[:, 1 + dy:n + 1 + dy, 1 + dx:n + 1 + dx]
-        out[:, k] = acc.reshape(P, n * n)
-    return out
-
-
-def _module_grid(n: int) -> np.ndarray:
-    """(n * n * 9, 2) sample points in module units: 3 x 3 per module, row-major modules."""
-    sub = (np.arange(3) - 1.0) * 0.22
-    cy, cx = np.meshgrid(np.arange(n) + 0.5, np.arange(n) + 0.5, indexing="ij")
-    px = (cx[..., None, None] + sub[None, None, None, :]).repeat(3, axis=2)
-    py = (cy[..., None, None] + sub[None, None, :, None]).repeat(3, axis=3)
-    return np.stack([px.ravel(), py.ravel()], axis=1)
 
 
 def decode_quads(lin: np.ndarray, quads: np.ndarray, table: PatternTable, *,
@@ -110,36 +82,31 @@ def decode_quads(lin: np.ndarray, quads: np.ndarray, table: PatternTable, *,
     if len(quads) == 0:
         return (np.zeros((0, 4, 2)), np.zeros(0, dtype=np.int64), np.zeros(0, dtype=np.intp),
                 np.zeros(0))
-    q = np.asarray(quads, dtype=np.float64).reshape(-1, 4, 2)
+    # a copy: the corner order is changed in place below
+    q = np.array(quads, dtype=np.float64).reshape(-1, 4, 2)
     # clockwise in the image (y down), like a marker seen from the front
     x, y = q[..., 0], q[..., 1]
     area = 0.5 * (x * np.roll(y, -1, 1) - np.roll(x, -1, 1) * y).sum(axis=1)
     q[area < 0] = q[area < 0][:, ::-1]
-    centre = q.mean(axis=1, keepdims=True)
-    radius = np.linalg.norm(q - centre, axis=2, keepdims=True)
+    center = q.mean(axis=1, keepdims=True)
+    radius = np.linalg.norm(q - center, axis=2, keepdims=True)
     # the quad finder's contour runs through the dark pixels along the border: inside
     # a dark border, outside a light one
     lin_q = np.asarray(lin)
     dark = border_is_dark(lin_q, q, table.n - 2)
     grow = np.where(dark, grow_px, -grow_px)[:, None, None]
-    q = centre + (q - centre) * (1.0 + grow * np.sqrt(2.0) / np.maximum(radius, 1.0))
+    q = center + (q - center) * (1.0 + grow * np.sqrt(2.0) / np.maximum(radius, 1.0))
     n = table.n
     size = float(n)
-    square = np.array([[0.0, 0.0], [size, 0.0], [size, size], [0.0, size]])
     R = len(q)
-    grid = _module_grid(n)
-    # the quiet zone just outside the border, half a module out
-    s = np.linspace(0.5, size - 0.5, 2 * n)
-    lo, hi = np.full_like(s, -0.5), np.full_like(s, size + 0.5)
-    out_ring = np.concatenate([np.c_[s, lo], np.c_[s, hi], np.c_[lo, s], np.c_[hi, s]])
     best_err: np.ndarray = np.full(R, 10**6)
     best_id: np.ndarray = np.zeros(R, dtype=np.int64)
     best_roll: np.ndarray = np.zeros(R, dtype=np.intp)
-    H0 = homographies(np.broadcast_to(square, (R, 4, 2)).copy(), q)
-    pts = apply_h(H0, np.broadcast_to(grid, (R, *grid.shape)))
-    vals = bilinear(lin, pts[..., 0], pts[..., 1]).reshape(R, n, n, 9).mean(axis=3)
-    ring = apply_h(H0, np.broadcast_to(out_ring, (R, *out_ring.shape)))
-    quiet = np.median(bilinear(lin, ring[..., 0], ring[..., 1]), axis=1)
+    H0 = module_homographies(q, n - 2)
+    vals = cell_means(lin, H0, module_grid(n, 0.22)).reshape(R, n, n)
+    # the quiet zone just outside the border, half a module out
+    s = np.linspace(0.5, size - 0.5, 2 * n)
+    quiet = ring_median(lin, H0, ring_points(s, -0.5, size + 0.5))
     border = np.concatenate([vals[:, 0, :], vals[:, -1, :], vals[:, 1:-1, 0], vals[:, 1:-1, -1]],
                             axis=1)
     border_level = np.median(border, axis=1)

@@ -1,11 +1,12 @@
-"""Marker detection: candidate quads, board-aware decoding, sub-pixel corners and centres.
+"""The detection pipeline: candidate quads, board-aware decoding, sub-pixel corners and centers.
 
 Pipeline for one image:
 
 1. Candidate quads and ids from OpenCV's ArUco detector (both polarities when the
    board has white-on-black markers), run on an 8-bit, contrast-stretched copy.
    The quads it found but could not read are decoded again against the board's
-   own patterns, blur-aware (:mod:`artcal_ros.core.detect.decode`).
+   own patterns, blur-aware (:mod:`artcal_ros.core.detect.candidates`,
+   :mod:`artcal_ros.core.detect.decode`).
 2. Only ids on the configured board survive; duplicated ids are dropped.
 3. Each quad is refined from its border edges in linear intensity
    (:mod:`artcal_ros.core.detect.edges`, :mod:`artcal_ros.core.detect.step_model`):
@@ -17,43 +18,39 @@ Pipeline for one image:
    (at most 2 wrong cells; none for a marker without neighbours), and the marker
    must sit where its image neighbours say it should on the board. A wrong id
    cannot reach the solver.
-5. Centres: the intersection of the refined quad's diagonals (exact under a
-   pinhole projection). With a lens (given, or estimated and well determined)
-   the corners are mapped to undistorted pixels first and the centre mapped
+5. Centers (:mod:`artcal_ros.core.detect.centers`): the intersection of the
+   refined quad's diagonals (exact under a pinhole projection). With a lens
+   (given, or estimated and well determined) the corners are mapped to
+   undistorted pixels first and the center mapped
    back; without one, the diagonals of the distorted quad are used, which is
    off by second-order terms of the distortion across the marker (a few
    hundredths of a pixel for 20 - 40 px markers near the corners of a strongly
    distorted webcam image).
 
-Pixel convention: OpenCV's, the centre of the top-left pixel is (0, 0).
+Pixel convention: OpenCV's, the center of the top-left pixel is (0, 0).
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass, replace
-from typing import Any
 
 import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.detect.decode import PatternTable, decode_quads
+from artcal_ros.core.camera import CameraModel, HasCamera
+from artcal_ros.core.detect.candidates import CandidateFinder
+from artcal_ros.core.detect.centers import diagonal_centers
 from artcal_ros.core.detect.edges import refine_quads, same_edges
-from artcal_ros.core.detect.lens import DivisionLens, LensModel, LensPool
-from artcal_ros.core.detect.verify import (
-    border_is_dark,
-    code_errors,
-    diagonal_centres,
-    inner_border_cells,
-    neighbour_support,
-    outer_neighbours,
-    sides_are_edges,
-)
+from artcal_ros.core.detect.image import linearise, to_gray, to_gray8
+from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool, known_lens
+from artcal_ros.core.detect.patterns import inner_border_cells, outer_neighbours
+from artcal_ros.core.detect.sampling import border_is_dark
+from artcal_ros.core.detect.verify import code_errors, neighbour_support, sides_are_edges
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import DetectionError
-from artcal_ros.core.homography import shortest_sides
 
-__all__ = ["Detector", "DetectorConfig", "detect", "linearise", "to_gray8"]
+__all__ = ["Detector", "DetectorConfig", "detect"]
 
 
 @dataclass(frozen=True)
@@ -67,7 +64,6 @@ class DetectorConfig:
         gamma_16bit: the same for 16-bit images (None: use ``gamma``).
         refine_edges: False keeps the quad finder's corners (for comparisons only).
         margin_px: edge profiles closer than this to a corner are skipped.
-        level_modules: half-width of the edge profile window, in modules.
         curve_min_px: image sides at least this long are fitted as parabolas
             (lens distortion bends them) when no camera model is given.
         estimate_lens: without a camera model, estimate a one-parameter division
@@ -91,7 +87,6 @@ class DetectorConfig:
     gamma_16bit: float | None = None
     refine_edges: bool = True
     margin_px: float = 1.5
-    level_modules: float = 0.4
     curve_min_px: float = 20.0
     estimate_lens: bool = True
     code_rows: int = 1
@@ -109,61 +104,6 @@ class DetectorConfig:
                                  "sRGB-like images, 1.0 for linear data)")
         if self.adaptive_window_max < 3:
             raise DetectionError("DetectorConfig.adaptive_window_max must be >= 3")
-
-
-def to_gray(image: np.ndarray) -> np.ndarray:
-    """(H, W) uint8/uint16/float from (H, W), (H, W, 1), (H, W, 3) BGR or (H, W, 4) BGRA."""
-    img = np.asarray(image)
-    if img.ndim == 3 and img.shape[2] == 1:
-        img = img[:, :, 0]
-    if img.ndim == 3 and img.shape[2] in (3, 4):
-        code = cv2.COLOR_BGR2GRAY if img.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
-        img = cv2.cvtColor(img, code)
-    if img.ndim != 2:
-        raise DetectionError(f"expected an (H, W) or (H, W, 3) image, got shape {img.shape}")
-    if img.dtype not in (np.uint8, np.uint16):
-        raise DetectionError(f"expected a uint8 or uint16 image, got {img.dtype}; "
-                             "convert it (e.g. scale floats to 0..255 and cast to uint8)")
-    return img
-
-
-def to_gray8(gray: np.ndarray) -> np.ndarray:
-    """An 8-bit copy for the quad finder, contrast-stretched so dark frames still threshold.
-
-    The stretch maps the 0.5th..99.5th percentile to 0..255 when that range is narrow.
-    """
-    g = gray
-    if g.dtype == np.uint16:
-        hi = float(np.percentile(g[::4, ::4], 99.9))
-        g = np.clip(g.astype(np.float32) * (255.0 / max(hi, 1.0)), 0, 255).astype(np.uint8)
-    lo, hi = np.percentile(g[::4, ::4], (0.5, 99.5))
-    if hi - lo < 120 and hi > lo:
-        scale = 230.0 / (hi - lo)
-        g = np.clip((g.astype(np.float32) - lo) * scale + 12.0, 0, 255).astype(np.uint8)
-    return g
-
-
-def linearise(gray: np.ndarray, gamma: float) -> np.ndarray:
-    """(H, W) float32 linear intensity in 0..1 from encoded grey values."""
-    if gray.dtype == np.uint8:
-        lut = ((np.arange(256) / 255.0) ** gamma).astype(np.float32)
-        return lut[gray]
-    if gamma == 1.0:
-        return gray.astype(np.float32) * np.float32(1.0 / 65535.0)
-    lut = ((np.arange(65536) / 65535.0) ** gamma).astype(np.float32)
-    return lut[gray]
-
-
-def _aruco_detector(board: Board, config: DetectorConfig) -> cv2.aruco.ArucoDetector:
-    p = cv2.aruco.DetectorParameters()
-    p.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_NONE
-    p.detectInvertedMarker = board.polarity != "black"
-    p.minMarkerPerimeterRate = 0.01
-    p.adaptiveThreshWinSizeMax = max(int(config.adaptive_window_max), 3)
-    # markers whose border comes within a pixel or two of the image edge are still
-    # whole; the edge fit ignores samples off the image
-    p.minDistanceToBorder = 0
-    return cv2.aruco.ArucoDetector(board.dictionary, p)
 
 
 def _clear_of_edge(corners: np.ndarray, w: int, h: int, clear: float) -> np.ndarray:
@@ -184,8 +124,9 @@ class Detector:
     def __init__(self, board: Board, config: DetectorConfig | None = None) -> None:
         self.board = board
         self.config = config or DetectorConfig()
-        self._aruco = _aruco_detector(board, self.config)
-        self._patterns = PatternTable(board, any_polarity=board.polarity == "any")
+        self._candidates = CandidateFinder(
+            board, adaptive_window_max=self.config.adaptive_window_max,
+            decode_rejected=self.config.decode_rejected, min_side_px=self.config.min_side_px)
         self._lens_pool = LensPool()
         # quiet zone around a marker's border, in modules (mixed boards: half the gap)
         gap = board.marker_separation / board.module_length
@@ -205,20 +146,20 @@ class Detector:
         """Forget the lens distortion learnt from earlier frames (a different camera)."""
         self._lens_pool.reset()
 
-    def detect(self, image: np.ndarray, camera: Any = None, *, source: str = "") -> Detections:
+    def detect(self, image: np.ndarray, camera: CameraModel | HasCamera | None = None, *,
+               source: str = "") -> Detections:
         """Detect the board's markers in one image.
 
         Args:
             image: (H, W) uint8/uint16 grey or (H, W, 3) uint8 BGR.
-            camera: optional lens model, ``(K, dist, model)`` or any object with
-                ``K``, ``dist`` and ``model`` attributes (e.g. a previous
-                calibration). With it, edges are fitted as straight lines in
-                undistorted coordinates (a second, refining pass after a first
-                calibration).
+            camera: optional known camera: a :class:`~artcal_ros.core.camera.CameraModel`
+                or a calibration result (its ``camera``). With it, edges are fitted as
+                straight lines in undistorted coordinates (a second, refining pass after a
+                first calibration).
             source: recorded in the result (a file name, a bag message).
 
         Returns:
-            :class:`Detections` with ids, corners (N, 4, 2), centres (N, 2) and
+            :class:`Detections` with ids, corners (N, 4, 2), centers (N, 2) and
             per-point sigmas, in pixels.
         """
         gray = to_gray(image)
@@ -230,7 +171,7 @@ class Detector:
             gamma = self.config.gamma_16bit
         lin = linearise(gray, gamma)
         bits = self.board.bits
-        quads, ids = self._candidates(gray8, lin)
+        quads, ids = self._candidates.find(gray8, lin)
         if len(ids) == 0:
             return replace(Detections.empty((w, h), source), sharpness=sharpness)
 
@@ -240,12 +181,11 @@ class Detector:
             keep = dark == expected
             quads, ids, dark = quads[keep], ids[keep], dark[keep]
 
-        lens: LensModel | DivisionLens | None = (
-            LensModel.from_any(camera) if camera is not None else None)
+        lens: Lens | None = (
+            known_lens(camera) if camera is not None else None)
         corners: np.ndarray
         if self.config.refine_edges and len(ids):
             fit = refine_quads(lin, quads, dark, bits, margin_px=self.config.margin_px,
-                               level_modules=self.config.level_modules,
                                curve_min_px=self.config.curve_min_px,
                                passes=1,
                                allow_curvature=lens is None and self.config.estimate_lens,
@@ -257,7 +197,7 @@ class Detector:
                                beyond_modules=self._quiet_modules,
                                lens_pool=self._lens_pool if self.config.pool_lens else None)
             # a lens estimated from this frame's edges bends the fitted sides; it moves
-            # the centres too once it is determined better than "no distortion" is
+            # the centers too once it is determined better than "no distortion" is
             # (|lam| above its standard deviation; a noisier one would add more error
             # to them than the distortion it removes)
             if isinstance(fit.lens, DivisionLens) and fit.lens.significance >= 1.0:
@@ -280,54 +220,13 @@ class Detector:
         ok &= sides_are_edges(lin, corners, dark, bits)
         corners, sigma, ids = corners[ok], sigma[ok], ids[ok]
 
-        centres, centre_sigma = diagonal_centres(corners, sigma, lens)
+        centers, center_sigma = diagonal_centers(corners, sigma, lens)
         order = np.argsort(ids)
-        return Detections(ids[order], corners[order], centres[order], (w, h),
-                          sigma[order], centre_sigma[order], sharpness, source)
-
-    def _candidates(self, gray8: np.ndarray, lin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """Quads (N, 4, 2) in board corner order and ids (N,) that belong to the board.
-
-        OpenCV's detections first; then the quads it found but could not read are
-        decoded again against the board's own patterns (:mod:`detect_decode`).
-        """
-        corners, ids_cv, rejected = self._aruco.detectMarkers(gray8)
-        if ids_cv is None or len(ids_cv) == 0:
-            quads: np.ndarray = np.zeros((0, 4, 2))
-            ids: np.ndarray = np.zeros(0, dtype=np.int64)
-        else:
-            quads = np.asarray(corners, dtype=np.float64).reshape(-1, 4, 2)
-            ids = np.asarray(ids_cv, dtype=np.int64).reshape(-1)  # type: ignore[assignment]
-        on_board = (ids >= self.board.first_id) & (ids <= int(self.board.ids[-1]))
-        quads, ids = quads[on_board], ids[on_board]
-        if self.config.decode_rejected and rejected is not None and len(rejected):
-            found = np.asarray(rejected, dtype=np.float64).reshape(-1, 4, 2)
-            rq = found[shortest_sides(found) >= self.config.min_side_px]
-            dq, dids, taken, err = decode_quads(lin, rq, self._patterns)
-            # near misses: re-read on quads refined from their edges
-            near = (err > 2) & (err <= 10)
-            near[taken] = False
-            if near.any():
-                nq = rq[near]
-                dark = border_is_dark(lin, nq, self.board.bits)
-                fit = refine_quads(lin, nq, dark, self.board.bits, allow_curvature=False,
-                                   passes=1)
-                good = fit.ok & same_edges(fit.corners_px, nq)
-                rq2, rids2, _, _ = decode_quads(lin, fit.corners_px[good], self._patterns,
-                                                grow_px=0.0)
-                dq = np.concatenate([dq, rq2])
-                dids = np.concatenate([dids, rids2])
-            new = ~np.isin(dids, ids)
-            quads = np.concatenate([quads, dq[new]])
-            ids = np.concatenate([ids, dids[new]])
-        uniq, counts = np.unique(ids, return_counts=True)
-        single = np.isin(ids, uniq[counts == 1])
-        quads, ids = quads[single], ids[single]
-        big = shortest_sides(quads) >= self.config.min_side_px
-        return quads[big], ids[big]
+        return Detections(ids[order], corners[order], centers[order], (w, h),
+                          sigma[order], center_sigma[order], sharpness, source)
 
 
 def detect(image: np.ndarray, board: Board, *, config: DetectorConfig | None = None,
-           camera: Any = None, source: str = "") -> Detections:
+           camera: CameraModel | HasCamera | None = None, source: str = "") -> Detections:
     """Detect ``board``'s markers in ``image`` (see :meth:`Detector.detect`)."""
     return Detector(board, config).detect(image, camera, source=source)

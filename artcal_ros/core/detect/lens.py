@@ -1,85 +1,20 @@
-"""A known lens model for detection: map pixels to undistorted pixels and back.
+"""Lenses for detection: a known camera, or a division model estimated from the image.
 
-Detection uses it on a second pass after a first calibration: border edges
-are fitted as straight lines in undistorted coordinates (where the marker's
-sides really are straight) and the corners and centres are mapped back.
+With a known camera (a second pass after a first calibration) border edges are fitted as
+straight lines in undistorted coordinates, where the marker's sides really are straight, and
+the corners and centers are mapped back. Without one, the plumb-line estimate
+(:mod:`.plumb`) gives a :class:`DivisionLens`, pooled over a stream's frames by
+:class:`LensPool`.
 """
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import Any
 
-import cv2
 import numpy as np
 
+from artcal_ros.core.camera import CameraModel, HasCamera, camera_of
 from artcal_ros.core.errors import DetectionError
-
-_MODELS = ("plumb_bob", "rational_polynomial", "equidistant")
-_CRITERIA = (cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 100, 1e-12)
-
-
-@dataclass(frozen=True)
-class LensModel:
-    """Camera matrix and distortion of a lens.
-
-    Attributes:
-        K: (3, 3) float64 camera matrix, pixels.
-        dist: (n,) float64 distortion coefficients in OpenCV order.
-        model: ``plumb_bob``, ``rational_polynomial`` or ``equidistant``.
-    """
-
-    K: np.ndarray
-    dist: np.ndarray
-    model: str = "plumb_bob"
-
-    @classmethod
-    def from_any(cls, camera: Any) -> LensModel:
-        """From ``(K, dist, model)``, ``(K, dist)`` or an object with K/dist/model attributes."""
-        if isinstance(camera, LensModel):
-            return camera
-        if isinstance(camera, tuple | list):
-            K, dist = camera[0], camera[1]
-            model = camera[2] if len(camera) > 2 else "plumb_bob"
-        else:
-            K = getattr(camera, "K", getattr(camera, "camera_matrix", None))
-            dist = getattr(camera, "dist", getattr(camera, "dist_coeffs", None))
-            model = getattr(camera, "model", "plumb_bob")
-        if K is None or dist is None:
-            raise DetectionError("camera: expected (K, dist, model) or an object with K, "
-                                 "dist and model attributes")
-        K = np.asarray(K, dtype=np.float64).reshape(3, 3)
-        dist = np.asarray(dist, dtype=np.float64).ravel()
-        if model not in _MODELS:
-            raise DetectionError(f"camera model {model!r} is not one of {', '.join(_MODELS)}")
-        return cls(K, dist, str(model))
-
-    def undistort(self, pts_px: np.ndarray) -> np.ndarray:
-        """(N, 2) image pixels -> (N, 2) undistorted pixels (same K)."""
-        p = np.asarray(pts_px, dtype=np.float64).reshape(-1, 1, 2)
-        if len(p) == 0:
-            return np.zeros((0, 2))
-        if self.model == "equidistant":
-            out = cv2.fisheye.undistortPoints(p, self.K, self.dist[:4], P=self.K,
-                                              criteria=_CRITERIA)
-        else:
-            out = cv2.undistortPointsIter(p, self.K, self.dist, None, self.K,  # type: ignore
-                                          _CRITERIA)
-        return np.asarray(out, dtype=np.float64).reshape(-1, 2)
-
-    def distort(self, pts_px: np.ndarray) -> np.ndarray:
-        """(N, 2) undistorted pixels -> (N, 2) image pixels."""
-        p = np.asarray(pts_px, dtype=np.float64).reshape(-1, 2)
-        if len(p) == 0:
-            return np.zeros((0, 2))
-        Kinv = np.linalg.inv(self.K)
-        xy = (np.c_[p, np.ones(len(p))] @ Kinv.T)[:, :2]
-        if self.model == "equidistant":
-            out = cv2.fisheye.distortPoints(xy.reshape(-1, 1, 2), self.K, self.dist[:4])
-        else:
-            obj = np.c_[xy, np.ones(len(xy))].reshape(-1, 1, 3)
-            out, _ = cv2.projectPoints(obj, np.zeros(3), np.zeros(3), self.K, self.dist)
-        return np.asarray(out, dtype=np.float64).reshape(-1, 2)
 
 
 @dataclass(frozen=True)
@@ -92,7 +27,7 @@ class DivisionLens:
 
     Attributes:
         lam: r^2 coefficient (negative: barrel), dimensionless.
-        centre: (2,) distortion centre, pixels.
+        center: (2,) distortion center, pixels.
         scale: radius normalisation, pixels (the image's half diagonal).
         lam2: r^4 coefficient.
         lam3: r^6 coefficient.
@@ -100,7 +35,7 @@ class DivisionLens:
     """
 
     lam: float
-    centre: np.ndarray
+    center: np.ndarray
     scale: float
     lam2: float = 0.0
     lam3: float = 0.0
@@ -112,15 +47,15 @@ class DivisionLens:
 
     def undistort(self, pts_px: np.ndarray) -> np.ndarray:
         """(N, 2) image pixels -> (N, 2) straightened pixels."""
-        d = np.asarray(pts_px, dtype=np.float64).reshape(-1, 2) - self.centre
-        return self.centre + d / self._factor(d)
+        d = np.asarray(pts_px, dtype=np.float64).reshape(-1, 2) - self.center
+        return self.center + d / self._factor(d)
 
     def distort(self, pts_px: np.ndarray) -> np.ndarray:
         """(N, 2) straightened pixels -> (N, 2) image pixels.
 
         Newton's method on the radius: ``r_d = r_u (1 + lam r_d^2 + lam2 r_d^4 + lam3 r_d^6)``.
         """
-        du = np.asarray(pts_px, dtype=np.float64).reshape(-1, 2) - self.centre
+        du = np.asarray(pts_px, dtype=np.float64).reshape(-1, 2) - self.center
         ru = np.hypot(du[:, 0], du[:, 1]) / self.scale
         rd = ru.copy()
         for _ in range(20):
@@ -135,7 +70,29 @@ class DivisionLens:
                 break
         with np.errstate(all="ignore"):
             gain = np.where(ru > 0, rd / ru, 1.0)
-        return self.centre + du * gain[:, None]
+        return self.center + du * gain[:, None]
+
+
+# A lens detection can map through: a known camera (the one CameraModel of the package, e.g.
+# a previous calibration) or the division model estimated from the image itself. Both offer
+# ``undistort`` and ``distort`` in pixels.
+Lens = CameraModel | DivisionLens
+
+
+def known_lens(camera: CameraModel | HasCamera) -> CameraModel:
+    """The camera of a ``camera=`` argument: a CameraModel, or a result that carries one.
+
+    Raises:
+        DetectionError: ``camera`` is neither.
+    """
+    try:
+        lens = camera_of(camera)
+    except AttributeError:
+        lens = None
+    if not isinstance(lens, CameraModel):
+        raise DetectionError(f"camera: expected a CameraModel (or a calibration result), got "
+                             f"{type(camera).__name__}")
+    return lens
 
 
 class LensPool:
@@ -149,7 +106,7 @@ class LensPool:
 
     Attributes:
         info: (3, 3) summed information about (lam, lam2, lam3).
-        info_theta: (2,) summed information-weighted estimates.
+        info_theta: (3,) summed information-weighted estimates.
         shape: (height, width) of the images pooled so far.
     """
 

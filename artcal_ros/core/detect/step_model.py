@@ -78,7 +78,7 @@ def pixel_esf(d: np.ndarray, sigma: np.ndarray, box_a: np.ndarray, box_b: np.nda
     closed-form in the second antiderivative of the normal CDF.
 
     Args:
-        d: distance of the pixel centre from the edge (positive on the bright side), pixels.
+        d: distance of the pixel center from the edge (positive on the bright side), pixels.
         sigma: Gaussian blur, pixels (broadcast with d).
         box_a, box_b: |nx|, |ny| (broadcast with d).
 
@@ -132,7 +132,7 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
                    module_px: np.ndarray, fit_order: np.ndarray, normal: np.ndarray, *,
                    outer: np.ndarray | None = None, quiet_px: np.ndarray | None = None,
                    samples_per_px: float = 1.0, iterations: int = 4
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fit the blurred-step model (module docstring) to every side.
 
     The N samples of all S sides come as flat arrays, each side's samples together
@@ -145,7 +145,8 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
         n_sides: S.
         basis: (N, 3) along-side polynomial basis (1, tau, tau^2 - 1/3) at each sample.
         coef0: (S, 3) starting edge polynomial (offset of the edge from the chord).
-        far: (N, R) share of the other colour in code rows 1..R behind the border.
+        far: (N, R) share of the other colour in code rows 1..R behind the border
+            (see :func:`far_cells`).
         module_px: (N,) module width at each sample, pixels.
         fit_order: (S,) 3 where the parabola term is free, 2 where it is held.
         normal: (S, 2) each side's unit normal (sets the pixel's footprint across it).
@@ -158,8 +159,7 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
 
     Returns:
         coef (S, 3) edge polynomial, cov (S, 3, 3) its covariance, blur (S,) pixels
-        (the Gaussian part, beyond the pixel's own footprint), residual rms (S,)
-        linear units.
+        (the Gaussian part, beyond the pixel's own footprint).
     """
     S = n_sides
     rows = far.shape[1]
@@ -277,7 +277,36 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
     cov = np.nan_to_num(cov)
     cov[fit_order < 3, 2, :] = 0.0
     cov[fit_order < 3, :, 2] = 0.0
-    return p[:, :3], cov, np.exp(p[:, 5]), np.sqrt(var)
+    return p[:, :3], cov, np.exp(p[:, 5])
+
+
+def far_cells(along: np.ndarray, same: np.ndarray, blur_modules: np.ndarray) -> np.ndarray:
+    """(N, ...) share of the other colour in one code row behind the border, blurred along it.
+
+    Gaussian blur is separable, so behind a straight border the code cells'
+    contribution at along-side position x is the sum over cells of the other
+    colour of ``Phi((x - x0) / w) - Phi((x - x1) / w)`` (the ``c`` of the
+    module docstring's model).
+
+    Args:
+        along: (N, ...) position of each sample along its side, modules (0 .. bits + 2).
+        same: (N, bits) bool, per sample: the row's code cells (in side order)
+            that share the border's colour.
+        blur_modules: (N, ...) blur of each sample's side, in modules along the side
+            (broadcast with ``along``).
+    """
+    bits = same.shape[1]
+    w = np.maximum(blur_modules, 1e-3)
+    far = np.zeros_like(along)
+    extra = (1,) * (along.ndim - 1)
+    # CDF at each cell boundary once; cell i spans boundaries i+1 .. i+2
+    left = phi_cdf((along - 1.0) / w)
+    for i in range(bits):
+        right = phi_cdf((along - (i + 2)) / w)
+        other = (~same[:, i]).astype(np.float64).reshape(-1, *extra)
+        far += other * (left - right)
+        left = right
+    return far
 
 
 def side_slots(side: np.ndarray, n_sides: int) -> tuple[np.ndarray, int]:

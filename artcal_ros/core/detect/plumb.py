@@ -1,0 +1,137 @@
+"""Straight board edges under a lens: how a lens bends a side, and the lens from bent sides.
+
+The board's edges are straight, so a lens model says exactly how each side's
+image bends (:func:`lens_bend`), and the bends of many sides say what the lens
+is (:func:`estimate_division`, the plumb-line method with a division model).
+"""
+
+from __future__ import annotations
+
+import numpy as np
+
+from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool
+from artcal_ros.core.detect.sides import SideModel, normal_equations, side_frames, tau_basis
+
+
+def lens_bend(lens: Lens, a: np.ndarray, u: np.ndarray, n: np.ndarray,
+              length: np.ndarray) -> np.ndarray:
+    """(S,) parabola coefficient of the image of a straight edge between each side's ends.
+
+    The chord's midpoint is mapped to straightened pixels, where the edge is
+    straight, and back; its offset along the normal is the sag, and the
+    parabola term (tau^2 - 1/3) of the fitted offset is minus the sag.
+
+    Args:
+        lens: the lens model.
+        a, u, n: (S, 2) side frames (:func:`~artcal_ros.core.detect.sides.side_frames`).
+        length: (S,) side lengths, pixels.
+    """
+    p0 = a
+    p1 = a + length[:, None] * u
+    und = lens.undistort(np.concatenate([p0, p1]))
+    mid_u = 0.5 * (und[: len(a)] + und[len(a):])
+    mid_d = lens.distort(mid_u)
+    sag = np.einsum("sd,sd->s", mid_d - 0.5 * (p0 + p1), n)
+    return -np.nan_to_num(sag)
+
+
+def _side_curvature(lens: DivisionLens, pts: np.ndarray, quads: np.ndarray,
+                    valid: np.ndarray) -> np.ndarray:
+    """(S,) parabola coefficient of every side's edge points after straightening by ``lens``.
+
+    Args:
+        lens: the division lens to straighten with.
+        pts: (S, K, 2) edge points, pixels.
+        quads: (M, 4, 2) the quads the sides belong to, pixels.
+        valid: (S, K) bool, the points to use.
+    """
+    M = len(quads)
+    und = lens.undistort(pts.reshape(-1, 2)).reshape(pts.shape)
+    ua, uu, un, ul = side_frames(lens.undistort(quads.reshape(-1, 2)).reshape(M, 4, 2))
+    rel = und - ua[:, None, :]
+    t = np.einsum("skd,sd->sk", rel, uu)
+    s = np.einsum("skd,sd->sk", rel, un)
+    # one unweighted least-squares parabola per side (what SideModel.fit's first
+    # step does), without the robust rescaling and covariance that are not used here
+    A = tau_basis(t, ul[:, None], np.ones((len(ul), 1), dtype=bool))
+    N, rhs = normal_equations(A, valid.astype(np.float64), np.where(valid, s, 0.0))
+    return np.linalg.solve(N, rhs)[:, 2, 0]
+
+
+def _division(theta: np.ndarray, center: np.ndarray, scale: float) -> DivisionLens:
+    """The division lens of parameters theta (3,) = (lam, lam2, lam3)."""
+    return DivisionLens(float(theta[0]), center, scale, float(theta[1]), float(theta[2]))
+
+
+def estimate_division(model: SideModel, quads: np.ndarray, t: np.ndarray,
+                      valid: np.ndarray, shape: tuple[int, ...],
+                      pool: LensPool | None = None) -> DivisionLens | None:
+    """Plumb-line estimate of a division-model lens from all sides' curvature.
+
+    Whatever bends all the board's sides in a consistent radial way is lens
+    distortion. The parabola term of every side is, to first order, linear in
+    the division parameters; weighted least squares (three Gauss-Newton steps,
+    weak zero-mean priors that shrink poorly determined parameters towards no
+    distortion) gives them. With a ``pool``, earlier frames' evidence joins the
+    fit and this frame's is added.
+
+    Args:
+        model: the fitted sides (parabolas where ``order`` is 3), S = 4 M.
+        quads: (M, 4, 2) the quads the sides were laid out from, pixels.
+        t: (S, K) along-side positions of the edge profiles, pixels.
+        valid: (S, K) bool, the profiles to use.
+        shape: the image's (height, width, ...).
+        pool: optional evidence from earlier frames of the same camera.
+
+    Returns:
+        the lens, or None without enough curved sides or with an implausible
+        estimate; its ``significance`` says how well the r^2 term is determined.
+    """
+    if pool is not None and pool.shape != tuple(shape[:2]):
+        pool.reset(tuple(shape[:2]))
+    pooled_info = pool.info if pool is not None else np.zeros((3, 3))
+    pooled_rhs = pool.info_theta if pool is not None else np.zeros(3)
+    if not (model.order >= 3).any() and not pooled_info.any():
+        return None
+    h, w = shape[:2]
+    center = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+    scale = float(np.hypot(w, h) / 2.0)
+    a, u, n, _ = side_frames(quads)
+    pts = (a[:, None, :] + t[..., None] * u[:, None, :]
+           + model.offset(t)[..., None] * n[:, None, :])
+    use = (model.order >= 3) & (model.count >= 6)
+    var = np.where(use, model.cov[:, 2, 2], np.inf) + 0.003**2
+    weight = np.where(use, 1.0 / var, 0.0)
+    theta: np.ndarray = np.zeros(3)  # lam, lam2, lam3
+    eps = 1e-3
+    # weak priors keep the r^4 and r^6 terms at zero unless the sides really ask for them
+    # (the r^6 term lets the model follow a polynomial lens's image corners)
+    prior = np.diag([1.0 / 0.5**2, 1.0 / 0.3**2, 1.0 / 0.05**2])
+    info: np.ndarray = np.zeros((3, 3))
+    own_info: np.ndarray = np.zeros((3, 3))
+    own_grad: np.ndarray = np.zeros(3)
+    for _ in range(3):
+        c = _side_curvature(_division(theta, center, scale), pts, quads, valid)
+        G = np.stack([(_side_curvature(_division(theta + eps * np.eye(3)[k], center, scale),
+                                       pts, quads, valid) - c) / eps for k in range(3)], axis=1)
+        ok = use & np.isfinite(c) & np.isfinite(G).all(axis=1)
+        if ok.sum() < 4 and not pooled_info.any():
+            return None
+        Wg = G[ok] * weight[ok, None]
+        own_info = G[ok].T @ Wg
+        own_grad = Wg.T @ c[ok]
+        info = own_info + prior + pooled_info
+        rhs = own_grad + (prior + pooled_info) @ theta - pooled_rhs
+        try:
+            theta = theta - np.linalg.solve(info, rhs)
+        except np.linalg.LinAlgError:
+            return None
+    if pool is not None and np.isfinite(theta).all():
+        # this frame's own estimate, linearised at theta: own_info^-1 (own_info theta - grad)
+        pool.info = pool.info + own_info
+        pool.info_theta = pool.info_theta + own_info @ theta - own_grad
+    lam, lam2, lam3 = float(theta[0]), float(theta[1]), float(theta[2])
+    sd = float(np.sqrt(max(np.linalg.inv(info)[0, 0], 1e-30)))
+    if not np.isfinite(theta).all() or abs(lam) > 1.0 or abs(lam2) > 1.0 or abs(lam3) > 1.0:
+        return None
+    return DivisionLens(lam, center, scale, lam2, lam3, abs(lam) / sd)
