@@ -15,7 +15,7 @@ $(STAMP): requirements.txt setup.py setup.cfg package.xml
 	touch $(STAMP)
 
 demo: $(STAMP)
-	$(PY) -m artcal_ros.ros.demo
+	$(PY) -m artcal_ros.ros.demo --bag bags/sample --params config/calibrator.yaml
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check artcal_ros test bench launch setup.py

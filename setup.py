@@ -15,7 +15,10 @@ setup(
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
         (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        (f"share/{PACKAGE}/config/boards", glob("config/boards/*.yaml")),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
+        # the sample recording and its truth: what the installed demo replays
+        (f"share/{PACKAGE}/bags/sample", sorted(glob("bags/sample/*"))),
     ],
     python_requires=">=3.10",
     install_requires=["setuptools", "numpy", "opencv-python-headless", "mcap",

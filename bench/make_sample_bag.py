@@ -18,10 +18,10 @@ from pathlib import Path
 
 from artcal_ros.bag import BagReader
 from artcal_ros.cli.progress import Progress
-from artcal_ros.cli.synth import write_dataset
 from artcal_ros.core.board import Board
 from artcal_ros.core.params import load_params
 from artcal_ros.synth import Camera, load_truth
+from artcal_ros.synth.dataset import write_dataset
 
 ROOT = Path(__file__).resolve().parents[1]
 OUT = ROOT / "bags" / "sample"

@@ -7,7 +7,8 @@
 Without ``--bag``: DIR/frame_0000.png ... and DIR/truth.json. With ``--bag``: DIR is a
 rosbag2 directory (metadata.yaml + .mcap) of sensor_msgs/Image on ``--topic``, with
 DIR/truth.json beside the recording (frames keyed by their stamp). The truth format
-is described in :mod:`artcal_ros.synth.truth`.
+is described in :mod:`artcal_ros.synth.truth`. This module only parses the arguments; the
+rendering and writing is :func:`artcal_ros.synth.dataset.write_dataset`.
 """
 
 from __future__ import annotations
@@ -16,33 +17,14 @@ import argparse
 import ctypes
 import ctypes.util
 import time
-from collections.abc import Callable
 from pathlib import Path
-
-import cv2
-import numpy as np
 
 from artcal_ros.cli.common import add_params_arguments, params_from_args
 from artcal_ros.cli.progress import Progress
 from artcal_ros.core.board import Board
-from artcal_ros.core.errors import ArtcalError, ParameterError
-from artcal_ros.synth import (
-    ENCODINGS,
-    PRESETS,
-    Backdrop,
-    Camera,
-    Photometry,
-    RenderedView,
-    marker_truth,
-    random_poses,
-    render_view,
-    smooth_poses,
-    write_truth,
-)
-
-PHOTOMETRIES = ("clean", "harsh", "mixed", "exact")
-# bag time of the first frame: a fixed instant, so a fixed seed gives a byte-identical bag
-BAG_START_NS = 1_700_000_000_000_000_000
+from artcal_ros.core.errors import ParameterError
+from artcal_ros.synth import ENCODINGS, PRESETS, Camera
+from artcal_ros.synth.dataset import PHOTOMETRIES, write_dataset
 
 
 def camera_from_arg(text: str) -> Camera:
@@ -56,118 +38,6 @@ def camera_from_arg(text: str) -> Camera:
                       info.image_size)
     except ParameterError as e:
         raise ParameterError(f"--camera {text}: {e}") from None
-
-
-def frame_photometry(name: str, rng: np.random.Generator) -> Photometry:
-    """The photometry of one frame: ``clean``/``harsh``/``exact`` as named; ``mixed`` draws a
-    mostly clean frame (light, exposure and noise varied) and one in five harsh."""
-    if name != "mixed":
-        return Photometry.by_name(name)
-    if rng.random() < 0.2:
-        return Photometry.harsh().with_(defocus_px=float(rng.uniform(0.5, 1.5)),
-                                        motion_px=float(rng.uniform(0.0, 3.0)))
-    return Photometry.clean().with_(gradient=float(rng.uniform(0.0, 0.3)),
-                                    exposure=float(rng.uniform(0.8, 1.15)),
-                                    full_well=float(rng.uniform(4000, 12000)),
-                                    defocus_px=float(rng.uniform(0.0, 0.6)))
-
-
-def motion_blur_from_poses(board: Board, cam: Camera, poses: list[tuple[np.ndarray,
-                                                                        np.ndarray]],
-                           index: int, open_fraction: float) -> tuple[float, float]:
-    """Blur (length px, angle deg) of frame ``index`` of a sequence: how far the markers'
-    images move while the shutter is open (``open_fraction`` of the frame interval), from
-    the neighbouring frames (central difference)."""
-    lo, hi = max(index - 1, 0), min(index + 1, len(poses) - 1)
-    if hi == lo:
-        return 0.0, 0.0
-    _, a, inside_a, _ = marker_truth(board, cam, *poses[lo])
-    _, b, inside_b, _ = marker_truth(board, cam, *poses[hi])
-    both = inside_a & inside_b
-    if not both.any():
-        return 0.0, 0.0
-    per_frame = np.median(b[both] - a[both], axis=0) / (hi - lo)
-    dx, dy = per_frame * open_fraction
-    return float(min(np.hypot(dx, dy), 100.0)), float(np.degrees(np.arctan2(dy, dx)))
-
-
-def write_dataset(board: Board, cam: Camera, out: str | Path, *, frames: int, seed: int = 0,
-                  photometry: str = "clean", encoding: str = "mono8",
-                  partial_fraction: float = 0.3, motion: str = "random", bag: bool = False,
-                  rate_hz: float = 10.0, topic: str = "/camera/image_raw",
-                  shutter_s: float = 0.0, overwrite: bool = False,
-                  progress: Callable[[], None] | None = None) -> Path:
-    """Render ``frames`` views and write them (PNGs or a bag) with ``truth.json``.
-
-    Deterministic: the same arguments give the same images and truth. With
-    ``motion="smooth"`` and ``shutter_s`` > 0 each frame is blurred by the camera's own
-    motion during that exposure time (at ``rate_hz`` frames per second).
-
-    Returns:
-        the path of the written ``truth.json``.
-    """
-    if photometry not in PHOTOMETRIES:
-        raise ParameterError(f"--photometry: {photometry!r} is not one of "
-                             f"{', '.join(PHOTOMETRIES)}")
-    if encoding not in ENCODINGS:
-        raise ParameterError(f"--encoding: {encoding!r} is not one of {', '.join(ENCODINGS)}")
-    if frames < 1:
-        raise ParameterError(f"--frames: {frames} must be >= 1")
-    if not rate_hz > 0:
-        raise ParameterError(f"--rate: {rate_hz} must be > 0 (frames per second)")
-    if motion not in ("random", "smooth"):
-        raise ParameterError(f"--motion: {motion!r} is not one of random, smooth")
-    if not 0 <= shutter_s <= 1 / rate_hz:
-        raise ParameterError(f"--shutter: {shutter_s} s must be between 0 and the frame "
-                             f"interval {1 / rate_hz:g} s")
-    out = Path(out)
-    rng = np.random.default_rng(seed)
-    make = smooth_poses if motion == "smooth" else random_poses
-    poses = make(board, cam, frames, rng, partial_fraction=partial_fraction)
-    records = []
-    phot_rng = np.random.default_rng([seed, 1])
-    # one room for the whole sequence: the background moves with the camera, as it should
-    wall = Backdrop.random(board, np.random.default_rng([seed, 2]))
-
-    def render(i: int) -> RenderedView:
-        phot = frame_photometry(photometry, phot_rng)
-        if motion == "smooth" and shutter_s > 0:
-            length, angle = motion_blur_from_poses(board, cam, poses, i, shutter_s * rate_hz)
-            phot = phot.with_(motion_px=length, motion_angle_deg=angle)
-        return render_view(board, cam, *poses[i], rng=rng, encoding=encoding, photometry=phot,
-                           backdrop=wall)
-
-    if bag:
-        from artcal_ros.bag import BagWriter
-        from artcal_ros.core.images import numpy_to_image
-        with BagWriter(out, storage="directory", overwrite=overwrite) as writer:
-            for i in range(len(poses)):
-                view = render(i)
-                stamp = BAG_START_NS + round(i * 1e9 / rate_hz)
-                writer.write(topic, "sensor_msgs/msg/Image", stamp,
-                             numpy_to_image(view.image, encoding, stamp, "camera"))
-                records.append(view.truth_record(stamp_ns=stamp))
-                if progress:
-                    progress()
-    else:
-        try:
-            out.mkdir(parents=True, exist_ok=True)
-        except OSError as e:
-            raise ArtcalError(f"--out: cannot create directory {out}: {e.strerror}") from e
-        for i in range(len(poses)):
-            view = render(i)
-            name = f"frame_{i:04d}.png"
-            if not cv2.imwrite(str(out / name), view.image):
-                raise ArtcalError(f"cannot write {out / name}")
-            records.append(view.truth_record(file=name))
-            if progress:
-                progress()
-    truth = out / "truth.json"
-    write_truth(truth, cam, board, records, seed=seed,
-                photometry={"name": photometry, "encoding": encoding, "motion": motion,
-                            "partial_fraction": partial_fraction, "shutter_s": shutter_s,
-                            **({"rate_hz": rate_hz, "topic": topic} if bag else {})})
-    return truth
 
 
 def _keep_freed_memory() -> None:

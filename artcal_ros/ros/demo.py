@@ -5,57 +5,106 @@ Starts the calibrator and replay nodes as separate processes on a private DDS do
 collected, calls ``~/calibrate``, and prints the one-line summary, the published
 CameraInfo and the calibration file's path. Nothing is written outside ``--out``.
 
-    python -m artcal_ros.ros.demo [--bag bags/sample] [--out DIR]
+    python -m artcal_ros.ros.demo [--bag bags/sample] [--params config/calibrator.yaml]
+                                  [--out DIR]
+
+Without ``--bag`` / ``--params`` it uses ``bags/sample`` and ``config/calibrator.yaml`` of the
+current directory when they exist, else the installed copies (``<prefix>/share/artcal_ros/``,
+from colcon or pip), else those of the source checkout an editable install runs from.
 """
 
 from __future__ import annotations
 
 import argparse
 import os
-import random
-import signal
-import subprocess
+import site
 import sys
 import tempfile
 import time
+import xml.etree.ElementTree as ET
 from pathlib import Path
-from typing import IO, Any
+from typing import Any
 
-ROOT = Path(__file__).resolve().parents[2]
-DEFAULT_BAG = ROOT / "bags" / "sample"
-PARAMS = ROOT / "config" / "calibrator.yaml"
+from artcal_ros.core.errors import ArtcalError
+from artcal_ros.ros.processes import NodeProcess, private_domain_env
+
+PACKAGE = "artcal_ros"
+SAMPLE_BAG = Path("bags") / "sample"
+PARAMS_FILE = Path("config") / "calibrator.yaml"
 IMAGE_TYPE = "sensor_msgs/msg/Image"
 DETECT_S = 0.7  # a generous detection time per frame on a small machine, seconds
 
 
-class Child:
-    """A node process in its own process group, logging to a file."""
+class DemoError(Exception):
+    """A one-line reason the demo cannot start (a user mistake or a missing file)."""
 
-    def __init__(self, name: str, args: list[str], log_path: Path) -> None:
-        self.name = name
-        self.log_path = log_path
-        self._log: IO[bytes] = open(log_path, "wb")  # noqa: SIM115 - closed in stop()
-        self.proc = subprocess.Popen([sys.executable, "-m", *args], cwd=ROOT,
-                                     stdout=self._log, stderr=subprocess.STDOUT,
-                                     start_new_session=True)
 
-    def stop(self, timeout: float = 10.0) -> int:
-        """SIGINT (rclpy can hang on SIGTERM), SIGKILL after ``timeout`` s; exit status."""
-        if self.proc.poll() is None:
-            try:
-                os.killpg(self.proc.pid, signal.SIGINT)
-                self.proc.wait(timeout)
-            except ProcessLookupError:
-                pass
-            except subprocess.TimeoutExpired:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait()
-        self._log.close()
-        return int(self.proc.returncode or 0)
+def _installed_share_dirs() -> list[Path]:
+    """Where an install put the package's data files (``<prefix>/share/artcal_ros``).
 
-    def tail(self, lines: int = 15) -> str:
-        self._log.flush()
-        return "\n".join(self.log_path.read_text(errors="replace").splitlines()[-lines:])
+    The ament index answers for a sourced ROS 2 workspace; ament_index_python may be absent
+    (it is not a dependency of the pip path), so the prefix is also derived from where the
+    package itself is installed (``<prefix>/lib/pythonX.Y/site-packages/artcal_ros``, as colcon
+    and pip lay it out) and from this interpreter's prefixes (``pip install`` into a venv or
+    ``--user``).
+    """
+    dirs: list[Path] = []
+    try:
+        from ament_index_python.packages import get_package_share_directory
+
+        dirs.append(Path(get_package_share_directory(PACKAGE)))
+    except (ImportError, LookupError, OSError, ValueError):  # absent, unset, not indexed
+        pass
+    import artcal_ros
+
+    package = Path(artcal_ros.__file__).resolve().parent
+    prefixes: list[Path] = []
+    if package.parent.name in ("site-packages", "dist-packages"):
+        # <prefix>/lib/pythonX.Y/site-packages, or Debian's <prefix>/local/lib/... layout
+        prefixes += list(package.parents)[3:5]
+    prefixes += [Path(sys.prefix), Path(site.getuserbase())]
+    dirs += [prefix / "share" / PACKAGE for prefix in prefixes]
+    return [d for i, d in enumerate(dirs) if d.is_dir() and d not in dirs[:i]]
+
+
+def _source_checkout() -> Path | None:
+    """The source tree this package runs from (an editable install or a plain checkout): the
+    package's parent directory if its package.xml names this package, else None."""
+    import artcal_ros
+
+    root = Path(artcal_ros.__file__).resolve().parents[1]
+    try:
+        name = ET.parse(root / "package.xml").getroot().findtext("name")
+    except (OSError, ET.ParseError):
+        return None
+    return root if name == PACKAGE else None
+
+
+def data_file(relative: Path, option: str) -> Path:
+    """A data file of the package for a default option value.
+
+    Args:
+        relative: its path relative to the project root / the share directory, e.g.
+            ``bags/sample``.
+        option: the command-line option that sets it instead, for the message.
+
+    Returns:
+        the first that exists of: the current directory's, the installed copy under
+        ``<prefix>/share/artcal_ros``, the source checkout's.
+
+    Raises:
+        DemoError: none exists; the message names what was looked for, where, and ``option``.
+    """
+    shares = _installed_share_dirs()
+    checkout = _source_checkout()
+    bases = [Path.cwd(), *shares, *([checkout] if checkout is not None else [])]
+    for base in bases:
+        if (base / relative).exists():
+            return base / relative
+    where = ", ".join(str(b) for b in bases)
+    if not shares:
+        where += " (and found no installed share/artcal_ros)"
+    raise DemoError(f"no {relative} in {where}; pass {option} PATH")
 
 
 def _bag_timing(bag: Path) -> tuple[str, int, float]:
@@ -65,7 +114,7 @@ def _bag_timing(bag: Path) -> tuple[str, int, float]:
     with BagReader(bag) as reader:
         topics = [t for t, kind in sorted(reader.topics.items()) if kind == IMAGE_TYPE]
         if not topics:
-            raise SystemExit(f"demo: {bag} has no {IMAGE_TYPE} topic")
+            raise DemoError(f"--bag: {bag} has no {IMAGE_TYPE} topic")
         stamps = [m.log_time_ns for m in reader.messages(topics[:1])]
     return topics[0], len(stamps), (stamps[-1] - stamps[0]) * 1e-9 if stamps else 0.0
 
@@ -93,11 +142,20 @@ def _compare_with_truth(bag: Path, yaml_path: Path) -> None:
           f"{rms:.3f} px RMS, {worst:.3f} px max over the image")
 
 
-def run(bag: Path, out: Path, timeout_s: float, rate: float | None = None) -> int:
-    """The demo; 0 when the calibration succeeded."""
-    # Our own DDS domain on this machine only, before any rclpy context exists.
-    os.environ["ROS_DOMAIN_ID"] = str(random.SystemRandom().randint(1, 200))
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+def run(bag: Path, params_file: Path, out: Path, timeout_s: float,
+        rate: float | None = None) -> int:
+    """The demo; 0 when the calibration succeeded.
+
+    Args:
+        bag: the recording to replay (absolute: the nodes run in ``out``).
+        params_file: the calibrator's ROS 2 parameters file (absolute).
+        out: directory for camera.yaml and the node logs; the nodes' working directory.
+        timeout_s: seconds to wait for enough views.
+        rate: replay speed (None: slow enough for detection to see most frames).
+    """
+    # Our own DDS domain on this machine only, before any rclpy context exists; the node
+    # processes inherit it.
+    os.environ.update(private_domain_env())
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -111,14 +169,15 @@ def run(bag: Path, out: Path, timeout_s: float, rate: float | None = None) -> in
     yaml_path = out / "camera.yaml"
     print(f"demo: {bag} has {frames} images on {topic} over {span:.1f} s; "
           f"replaying at rate {rate:.2f} into the calibrator "
-          f"(ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}, logs in {out})", flush=True)
-    params = ["--params-file", str(PARAMS)] if PARAMS.is_file() else []
-    calibrator = Child("calibrator", [
-        "artcal_ros.ros.calibrator", "--ros-args", *params, "-r", f"image:={topic}",
-        "-p", f"output_file:={yaml_path}"], out / "calibrator.log")
-    replay = Child("replay", [
-        "artcal_ros.ros.replay", "--ros-args", "-p", f"bag:={bag}", "-p", f"rate:={rate:.3f}",
-        "-p", "loop:=true"], out / "replay.log")
+          f"(ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}, parameters {params_file}, "
+          f"logs in {out})", flush=True)
+    # Run in ``out`` with absolute paths: nothing depends on where the demo was started.
+    calibrator = NodeProcess.python_module("artcal_ros.ros.calibrator", [
+        "--ros-args", "--params-file", str(params_file), "-r", f"image:={topic}",
+        "-p", f"output_file:={yaml_path}"], out / "calibrator.log", cwd=out)
+    replay = NodeProcess.python_module("artcal_ros.ros.replay", [
+        "--ros-args", "-p", f"bag:={bag}", "-p", f"rate:={rate:.3f}", "-p", "loop:=true"],
+        out / "replay.log", cwd=out)
     rclpy.init()
     node = rclpy.create_node("artcal_demo")
     diagnostics: list[Any] = []
@@ -143,7 +202,7 @@ def run(bag: Path, out: Path, timeout_s: float, rate: float | None = None) -> in
             if values and int(values["views"]) >= int(values["views needed"]):
                 break
             for child in (calibrator, replay):
-                if child.proc.poll() is not None:
+                if not child.running():
                     print(f"demo: the {child.name} node stopped:\n{child.tail()}")
                     return 1
             if time.monotonic() > deadline:
@@ -183,9 +242,15 @@ def run(bag: Path, out: Path, timeout_s: float, rate: float | None = None) -> in
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point of ``python -m artcal_ros.ros.demo``."""
+    """Entry point of ``python -m artcal_ros.ros.demo``; 0 on success, 1 when the calibration
+    failed, 2 on bad usage or a missing file (one line on stderr)."""
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0] if __doc__ else None)
-    ap.add_argument("--bag", type=Path, default=DEFAULT_BAG, help="rosbag2 MCAP recording")
+    ap.add_argument("--bag", type=Path, default=None,
+                    help=f"rosbag2 MCAP recording (default: {SAMPLE_BAG} here, else the "
+                         "installed sample)")
+    ap.add_argument("--params", type=Path, default=None,
+                    help=f"the calibrator's ROS 2 parameters file (default: {PARAMS_FILE} "
+                         "here, else the installed one)")
     ap.add_argument("--out", type=Path, default=None,
                     help="directory for camera.yaml and the node logs (default: a new temp dir)")
     ap.add_argument("--rate", type=float, default=None,
@@ -194,14 +259,27 @@ def main(argv: list[str] | None = None) -> int:
     ap.add_argument("--timeout", type=float, default=120.0,
                     help="seconds to wait for enough views")
     args = ap.parse_args(argv)
-    if not args.bag.exists():
-        print(f"demo: no bag at {args.bag} (make sample-bag renders one)", file=sys.stderr)
+    try:
+        bag = args.bag if args.bag is not None else data_file(SAMPLE_BAG, "--bag")
+        params = args.params if args.params is not None else data_file(PARAMS_FILE, "--params")
+        if not bag.exists():
+            raise DemoError(f"--bag: no bag at {bag} (make sample-bag renders one)")
+        if not params.is_file():
+            raise DemoError(f"--params: no parameters file at {params}")
+        out = args.out or Path(tempfile.mkdtemp(prefix="artcal-demo-"))
+        try:
+            out.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise DemoError(f"--out: cannot create directory {out}: {e.strerror}") from None
+    except DemoError as e:
+        print(f"demo: {e}", file=sys.stderr)
         return 2
-    out = args.out or Path(tempfile.mkdtemp(prefix="artcal-demo-"))
-    out.mkdir(parents=True, exist_ok=True)
     t0 = time.monotonic()
     try:
-        status = run(args.bag.resolve(), out.resolve(), args.timeout, args.rate)
+        status = run(bag.resolve(), params.resolve(), out.resolve(), args.timeout, args.rate)
+    except (DemoError, ArtcalError) as e:  # e.g. an unreadable bag: its one-line reason
+        print(f"demo: {e}", file=sys.stderr)
+        return 2
     except KeyboardInterrupt:
         print("demo: interrupted", file=sys.stderr)
         return 130

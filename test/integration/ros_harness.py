@@ -8,14 +8,14 @@ from __future__ import annotations
 
 import contextlib
 import os
-import random
-import signal
 import subprocess
 import threading
 import time
 from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
+
+from artcal_ros.ros import processes
 
 ROOT = Path(__file__).resolve().parents[2]
 BIN = ROOT / ".venv" / "bin"
@@ -25,24 +25,22 @@ def configure_ros_env() -> None:
     """Put this test session on its own DDS domain, on this machine only.
 
     Called at conftest import, before any rclpy context exists; subprocesses inherit it.
+    ARTCAL_TEST_DOMAIN, when set, chooses the domain (so several pytest processes can share
+    one); otherwise a random one is drawn and recorded there.
     """
     if "ARTCAL_TEST_DOMAIN" not in os.environ:
-        # Domain ids above ~200 run out of UDP ports for many participants; 0 is the default
-        # everyone else uses.
-        os.environ["ARTCAL_TEST_DOMAIN"] = str(random.SystemRandom().randint(1, 200))
-    os.environ["ROS_DOMAIN_ID"] = os.environ["ARTCAL_TEST_DOMAIN"]
-    os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
+        os.environ["ARTCAL_TEST_DOMAIN"] = str(processes.random_domain_id())
+    os.environ.update(processes.private_domain_env(int(os.environ["ARTCAL_TEST_DOMAIN"])))
 
 
 def stop_all() -> None:
     """Stop every node process still running (after a failed test)."""
     while RUNNING:
         node = RUNNING.pop()
-        if node.proc.poll() is None:
+        if node.running():
             # If it needs SIGKILL, the test already failed for a reason of its own.
             with contextlib.suppress(AssertionError):
                 node.stop()
-        node._close()
 
 
 def wait_until(predicate: Callable[[], Any], timeout: float, what: str,
@@ -61,61 +59,37 @@ def wait_until(predicate: Callable[[], Any], timeout: float, what: str,
 RUNNING: list[NodeProcess] = []  # stopped after each test by the conftest, pass or fail
 
 
-class NodeProcess:
-    """One of our console scripts running in its own process group, output to files."""
+class NodeProcess(processes.NodeProcess):
+    """One of our console scripts (``.venv/bin/<script> --ros-args ...``), run by the package's
+    process runner (:class:`artcal_ros.ros.processes.NodeProcess`: own process group, output
+    in ``log_dir/<name>.log``), with test failures as AssertionError."""
 
     def __init__(self, script: str, ros_args: Sequence[str], log_dir: Path,
                  name: str | None = None, *, per_test: bool = True) -> None:
-        self.name = name or script
-        self.out_path = log_dir / f"{self.name}.out"
-        self.err_path = log_dir / f"{self.name}.err"
-        self._out = open(self.out_path, "wb")  # noqa: SIM115 - closed in stop()
-        self._err = open(self.err_path, "wb")  # noqa: SIM115
-        self.proc = subprocess.Popen([str(BIN / script), "--ros-args", *ros_args], cwd=ROOT,
-                                     stdout=self._out, stderr=self._err,
-                                     start_new_session=True)
+        super().__init__([str(BIN / script), "--ros-args", *ros_args],
+                         log_dir / f"{name or script}.log", name=name or script, cwd=ROOT)
         if per_test:  # else the fixture that started it stops it
             RUNNING.append(self)
 
-    def output(self) -> str:
-        """stdout and stderr so far (rclpy logs to stderr)."""
-        for f in (self._out, self._err):
-            if not f.closed:
-                f.flush()
-        return self.out_path.read_text(errors="replace") + self.err_path.read_text(
-            errors="replace")
-
     def wait(self, timeout: float) -> int:
-        """Wait for the process to end by itself; its exit status."""
+        """Wait for the process to end by itself; its exit status (AssertionError, with the
+        end of its output, if it is still running after ``timeout`` s: it is stopped)."""
         try:
-            return self.proc.wait(timeout)
+            return super().wait(timeout)
         except subprocess.TimeoutExpired:
             text = self.output()[-2000:]
             self.stop()
             raise AssertionError(f"{self.name} still running after {timeout:g} s:\n"
                                  f"{text}") from None
-        finally:
-            self._close()
 
     def stop(self, timeout: float = 10.0) -> int:
-        """SIGINT (SIGTERM can hang rclpy), then SIGKILL after ``timeout``; the exit status."""
-        if self.proc.poll() is None:
-            with contextlib.suppress(ProcessLookupError):
-                os.killpg(self.proc.pid, signal.SIGINT)
-            try:
-                self.proc.wait(timeout)
-            except subprocess.TimeoutExpired:
-                os.killpg(self.proc.pid, signal.SIGKILL)
-                self.proc.wait()
-                self._close()
-                raise AssertionError(f"{self.name} ignored SIGINT for {timeout:g} s") from None
-        self._close()
-        return int(self.proc.returncode)
-
-    def _close(self) -> None:
-        for f in (self._out, self._err):
-            if not f.closed:
-                f.close()
+        """SIGINT, then SIGKILL after ``timeout``; the exit status (AssertionError if it
+        needed SIGKILL: a node must stop on SIGINT)."""
+        killed_before = self.killed  # a second stop() of a killed node just gives its status
+        status = super().stop(timeout)
+        if self.killed and not killed_before:
+            raise AssertionError(f"{self.name} ignored SIGINT for {timeout:g} s")
+        return status
 
 
 class Probe:

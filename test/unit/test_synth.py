@@ -24,6 +24,7 @@ from artcal_ros.synth import (
     render_linear,
     render_view,
 )
+from artcal_ros.synth.dataset import motion_blur_from_poses, write_dataset
 from artcal_ros.synth.photometry import sense_and_encode
 
 RATIONAL = Camera("rational_polynomial",
@@ -314,8 +315,20 @@ def test_motion_blur_follows_the_camera() -> None:
     cam = Camera("plumb_bob", np.array([[600.0, 0, 320], [0, 600.0, 240], [0, 0, 1]]),
                  np.zeros(5), (640, 480))
     poses = [(np.zeros(3), np.array([-0.75 - 0.01 * k, -0.35, 1.0])) for k in range(3)]
-    length, angle = synth_cmd.motion_blur_from_poses(Board(), cam, poses, 1, 0.5)
+    length, angle = motion_blur_from_poses(Board(), cam, poses, 1, 0.5)
     assert abs(length - 3.0) < 1e-9 and abs(abs(angle) - 180.0) < 1e-6
+
+
+def test_write_dataset_is_library_code(tmp_path: Path) -> None:
+    """Called directly (as the benchmarks do): reports each frame, returns the truth's path."""
+    done: list[None] = []
+    truth_path = write_dataset(Board(), Camera.preset("webcam"), tmp_path / "d", frames=2,
+                               seed=3, progress=lambda: done.append(None))
+    assert truth_path == tmp_path / "d" / "truth.json" and len(done) == 2
+    assert [f.file for f in load_truth(truth_path).frames] == ["frame_0000.png",
+                                                               "frame_0001.png"]
+    with pytest.raises(ParameterError, match="frames"):
+        write_dataset(Board(), Camera.preset("webcam"), tmp_path / "e", frames=0)
 
 
 def test_cli_refuses_bad_input(tmp_path: Path) -> None:
