@@ -1,15 +1,23 @@
-"""Accumulated coverage of the image and readiness for a solve (what is still missing).
+"""The one view geometry: guessed camera, board pose, coverage grid and readiness.
 
 A live calibration needs views that, together, put board points over the whole
 image (so distortion is constrained out to the edges) and that tilt the board
-(a fronto-parallel plane leaves the focal length unobservable). The
-:class:`ViewCollector` keeps the views worth solving from (a new view must
-differ from every one kept), counts where their points fall on a coarse
-grid, estimates each view's tilt, and says in plain words what is missing.
+(a fronto-parallel plane leaves the focal length unobservable). This module is
+the single definition of how a view is measured before any solve, used by both
+sides that judge views:
 
-The tilt estimate assumes a rough camera (focal length = image width,
-principal point at the centre): it only decides "tilted or not" for guidance,
-so a focal length off by half still sorts views correctly.
+- the node's :class:`ViewCollector` (readiness, novelty, tilt, the heat map), and
+- the calibration (``core.calibrate.views``: view selection, the degeneracy checks;
+  ``core.calibrate.pipeline``: the coverage figure and its warning),
+
+so the node cannot call a collection "ready" whose solve then warns that the
+coverage is poor. The pieces: one guessed camera (:func:`guess_camera_matrix`),
+one pose estimate (planar PnP, IPPE, :func:`view_geometry`), one coverage grid
+(:data:`COVERAGE_GRID`, :func:`grid_cells`) and one threshold (:data:`MIN_COVERAGE`).
+
+The pose assumes a rough camera (focal length 0.8 x the larger image side,
+principal point at the centre): it only sorts views ("tilted or not", "unlike
+the others"), so a focal length off by a third still sorts them correctly.
 """
 
 from __future__ import annotations
@@ -24,20 +32,150 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.detections import Detections
 
+COVERAGE_GRID = (8, 6)  # (cols, rows): cells across and down the image
+MIN_COVERAGE = 0.6  # share of the grid cells that should hold a point of some view
+POINTS_MODES = ("centers", "corners")  # the correspondences a solve may use
+
 # Names of the 3 x 3 regions of the image, row-major, for "what is missing".
 REGION_NAMES = ("top-left", "top", "top-right", "left", "centre", "right",
                 "bottom-left", "bottom", "bottom-right")
+
+
+def guess_camera_matrix(image_size: tuple[int, int]) -> np.ndarray:
+    """A rough pinhole camera (about 65 degrees across) for view geometry before a solve.
+
+    Args:
+        image_size: (width, height), pixels.
+
+    Returns:
+        (3, 3) float64 camera matrix, pixels.
+    """
+    w, h = image_size
+    f = 0.8 * max(w, h)
+    return np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
+
+
+def grid_cells(image_points: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
+    """The cells of :data:`COVERAGE_GRID` that hold at least one of the points.
+
+    Args:
+        image_points: (N, 2) pixels.
+        image_size: (width, height), pixels.
+
+    Returns:
+        (cols * rows,) bool, row-major (cell ``row * cols + col``).
+    """
+    w, h = image_size
+    gx, gy = COVERAGE_GRID
+    cells = np.zeros(gx * gy, dtype=bool)
+    pts = np.asarray(image_points, dtype=np.float64).reshape(-1, 2)
+    cx = np.clip((pts[:, 0] / w * gx).astype(int), 0, gx - 1)
+    cy = np.clip((pts[:, 1] / h * gy).astype(int), 0, gy - 1)
+    cells[cy * gx + cx] = True
+    return cells
+
+
+def coverage_fraction(cells: np.ndarray) -> float:
+    """Share (0..1) of the grid cells that some view covers. ``cells``: (V, C) or (C,) bool."""
+    c = np.asarray(cells, dtype=bool)
+    if c.ndim == 2:
+        c = np.asarray(c.any(axis=0), dtype=bool)
+    return float(np.mean(c))
+
+
+@dataclass(frozen=True)
+class ViewGeometry:
+    """Rough geometry of one view, from a guessed camera.
+
+    Attributes:
+        normal: (3,) unit board normal in the camera frame, facing the camera (z < 0);
+            zeros if the pose could not be estimated.
+        log_distance: log of the camera-to-board-origin distance, metres (0 without a pose).
+        center_px: (2,) mean image position of the view's points, pixels.
+        cells: (C,) bool, the :data:`COVERAGE_GRID` cells the view's points fall in.
+    """
+
+    normal: np.ndarray
+    log_distance: float
+    center_px: np.ndarray
+    cells: np.ndarray
+
+    @property
+    def tilt_x_deg(self) -> float:
+        """The board turned left/right: rotation about the camera's y axis (right-handed,
+        image down), degrees; 0 facing the camera."""
+        return math.degrees(math.atan2(-float(self.normal[0]), -float(self.normal[2])))
+
+    @property
+    def tilt_y_deg(self) -> float:
+        """The board tipped up/down: rotation about the camera's x axis (right-handed,
+        image right), degrees; 0 facing the camera."""
+        return math.degrees(math.atan2(float(self.normal[1]), -float(self.normal[2])))
+
+
+def view_geometry(object_points: np.ndarray, image_points: np.ndarray,
+                  image_size: tuple[int, int],
+                  camera_matrix: np.ndarray | None = None) -> ViewGeometry:
+    """Pose (planar PnP, IPPE) and coverage cells of one view: THE view geometry.
+
+    Args:
+        object_points: (N, 3) board points (z = 0), metres; N >= 4 for a pose.
+        image_points: (N, 2) their images, pixels.
+        image_size: (width, height), pixels.
+        camera_matrix: (3, 3) a better camera than :func:`guess_camera_matrix`, if known.
+    """
+    K = guess_camera_matrix(image_size) if camera_matrix is None else camera_matrix
+    obj = np.asarray(object_points, dtype=np.float64).reshape(-1, 3)
+    img = np.asarray(image_points, dtype=np.float64).reshape(-1, 2)
+    normal: np.ndarray = np.zeros(3)
+    log_distance = 0.0
+    if len(obj) >= 4:
+        ok, rvec, tvec = cv2.solvePnP(obj, img, K, np.zeros(5), flags=cv2.SOLVEPNP_IPPE)
+        if ok:
+            R, _ = cv2.Rodrigues(rvec)
+            n = R[:, 2]
+            normal = n if n[2] < 0 else -n  # facing the camera
+            log_distance = float(np.log(max(float(np.linalg.norm(tvec)), 1e-6)))
+    center = img.mean(axis=0) if len(img) else np.full(2, np.nan)
+    return ViewGeometry(normal, log_distance, center, grid_cells(img, image_size))
+
+
+def solve_points(dets: Detections, board: Board, points: str) -> tuple[np.ndarray, np.ndarray]:
+    """The board and image points a solve takes from one view (as ``views.view_points``).
+
+    Args:
+        dets: the view's markers.
+        board: the board (ids not on it are ignored).
+        points: ``centers`` (one point per marker, needing its corners too) or ``corners``.
+
+    Returns:
+        (object_points (N, 3) metres, image_points (N, 2) pixels).
+    """
+    if points not in POINTS_MODES:
+        raise ValueError(f"points mode {points!r} is not one of {', '.join(POINTS_MODES)}")
+    keep = np.array([board.has_id(int(i)) for i in dets.ids], dtype=bool).reshape(-1)
+    ids, corners = dets.ids[keep], dets.corners_px[keep]
+    has_corners = np.all(np.isfinite(corners), axis=(1, 2))
+    if points == "centers":
+        centers = dets.centers_px[keep]
+        ok = has_corners & np.all(np.isfinite(centers), axis=1)
+        return board.object_centers(ids[ok]), centers[ok]
+    return (board.object_corners(ids[has_corners]).reshape(-1, 3),
+            corners[has_corners].reshape(-1, 2))
 
 
 @dataclass(frozen=True)
 class CoverageConfig:
     """What a collection needs before it is ready, and when a view counts as new.
 
+    The coverage grid and threshold are not here on purpose: they are
+    :data:`COVERAGE_GRID` and :data:`MIN_COVERAGE`, the ones the solve judges by.
+
     Attributes:
         min_views: views needed before a solve is attempted.
         min_markers: markers a view needs to be kept.
-        grid_cols, grid_rows: cells of the coverage grid over the image.
-        min_coverage: fraction (0..1) of grid cells that should hold a board point.
+        points: ``corners`` | ``centers``: the points the solve will use (coverage is
+            counted on them, as the solve counts it).
         tilt_deg: a view is "tilted" about an axis beyond this angle, degrees.
         novelty: a view is new unless some kept view shares at least half of its markers,
             their mean displacement is within this fraction of the image diagonal, and
@@ -47,27 +185,10 @@ class CoverageConfig:
 
     min_views: int = 10
     min_markers: int = 6
-    grid_cols: int = 12
-    grid_rows: int = 9
-    min_coverage: float = 0.6
+    points: str = "corners"
     tilt_deg: float = 15.0
     novelty: float = 0.03
     max_stored: int = 400
-
-
-@dataclass(frozen=True)
-class ViewGeometry:
-    """Where one view's board sits: tilt about the image axes and apparent size.
-
-    Attributes:
-        tilt_x_deg: rotation of the board about the image's vertical axis (left/right), degrees.
-        tilt_y_deg: rotation about the image's horizontal axis (up/down), degrees.
-        area_fraction: area of the detected markers' hull over the image area (0..1).
-    """
-
-    tilt_x_deg: float
-    tilt_y_deg: float
-    area_fraction: float
 
 
 @dataclass(frozen=True)
@@ -107,37 +228,29 @@ class Readiness:
         return head + ("; ready" if self.ready else "; missing: " + "; ".join(self.missing))
 
 
-def view_geometry(dets: Detections, board: Board) -> ViewGeometry:
-    """Estimate a view's tilt and apparent size from its marker centres.
+@dataclass(frozen=True)
+class Snapshot:
+    """One consistent look at a collection (taken under its lock).
 
-    Args:
-        dets: the view's detections (at least 4 markers for a tilt; fewer give zero tilt).
-        board: the board the ids belong to.
+    Attributes:
+        views: the kept views, oldest first (a new list).
+        image_size: (width, height) of the views, pixels; None before the first.
+        counts: (rows, cols) int64, how many kept views put a point in each grid cell.
+        readiness: views, coverage, tilt and what is missing.
     """
-    w, h = dets.image_size
-    pts = dets.corners_px.reshape(-1, 2).astype(np.float32)
-    area = float(cv2.contourArea(cv2.convexHull(pts))) / float(w * h) if len(pts) >= 3 else 0.0
-    if len(dets) < 4:
-        return ViewGeometry(0.0, 0.0, area)
-    obj = board.object_centers(dets.ids)[:, :2]
-    H, _ = cv2.findHomography(obj, dets.centers_px, 0)
-    if H is None:
-        return ViewGeometry(0.0, 0.0, area)
-    f = float(w)
-    K_inv = np.array([[1 / f, 0, -0.5 * (w - 1) / f], [0, 1 / f, -0.5 * (h - 1) / f], [0, 0, 1]])
-    M = K_inv @ H
-    r1 = M[:, 0] / np.linalg.norm(M[:, 0])
-    r2 = M[:, 1] / np.linalg.norm(M[:, 1])
-    normal = np.cross(r1, r2)
-    normal /= np.linalg.norm(normal)
-    if normal[2] < 0:
-        normal = -normal
-    return ViewGeometry(math.degrees(math.atan2(normal[0], normal[2])),
-                        math.degrees(math.atan2(normal[1], normal[2])), area)
+
+    views: list[Detections]
+    image_size: tuple[int, int] | None
+    counts: np.ndarray
+    readiness: Readiness
 
 
 class ViewCollector:
     """Keeps the views worth solving from and the coverage they add (thread-safe).
+
+    Every read and change of the collection happens under one lock, so views, image
+    size, counts and readiness always describe the same collection, whichever threads
+    add, reset and query at once.
 
     Args:
         board: the calibration board.
@@ -146,27 +259,48 @@ class ViewCollector:
 
     def __init__(self, board: Board, config: CoverageConfig | None = None) -> None:
         self.board = board
-        self.config = config or CoverageConfig()
+        self._config = config or CoverageConfig()
         self._lock = threading.Lock()
-        self.reset()
+        self._views: list[Detections] = []
+        self._geometry: list[ViewGeometry] = []
+        gx, gy = COVERAGE_GRID
+        self._counts = np.zeros((gy, gx), np.int64)
+        self._image_size: tuple[int, int] | None = None
 
-    def reset(self) -> None:
-        """Forget every view and the coverage."""
+    @property
+    def config(self) -> CoverageConfig:
+        """The thresholds; setting them applies to later views and queries."""
         with self._lock:
-            self._views: list[Detections] = []
-            self._geometry: list[ViewGeometry] = []
-            self._counts = np.zeros((self.config.grid_rows, self.config.grid_cols), np.int64)
-            self._image_size: tuple[int, int] | None = None
+            return self._config
+
+    @config.setter
+    def config(self, config: CoverageConfig) -> None:
+        with self._lock:
+            self._config = config
+
+    def reset(self) -> int:
+        """Forget every view and the coverage; the number of views forgotten."""
+        with self._lock:
+            n = len(self._views)
+            self._clear()
+            return n
+
+    def _clear(self) -> None:
+        # Caller holds the lock.
+        self._views = []
+        self._geometry = []
+        self._counts = np.zeros_like(self._counts)
+        self._image_size = None
 
     # --- accumulation -------------------------------------------------------------
-    def _is_new(self, dets: Detections, geometry: ViewGeometry) -> bool:
-        # Against every kept view, not just the last: a board held still, or a recording
-        # played in a loop, must not fill the collection with copies of one view. Turning
-        # the board about its centre barely moves the markers on average but is exactly the
-        # view a solve needs, hence the tilt test as well.
+    def _is_new(self, dets: Detections, geometry: ViewGeometry, cfg: CoverageConfig) -> bool:
+        # Caller holds the lock. Against every kept view, not just the last: a board held
+        # still, or a recording played in a loop, must not fill the collection with copies
+        # of one view. Turning the board about its centre barely moves the markers on
+        # average but is exactly the view a solve needs, hence the tilt test as well.
         w, h = dets.image_size
-        limit = self.config.novelty * math.hypot(w, h)
-        turn = 0.5 * self.config.tilt_deg
+        limit = cfg.novelty * math.hypot(w, h)
+        turn = 0.5 * cfg.tilt_deg
         for old, old_geometry in zip(reversed(self._views), reversed(self._geometry),
                                      strict=True):
             shared, i_new, i_old = np.intersect1d(dets.ids, old.ids, return_indices=True)
@@ -185,30 +319,24 @@ class ViewCollector:
         A view of another image size than the kept ones starts a fresh collection,
         since views of different sizes cannot be solved together.
         """
-        if len(dets) < self.config.min_markers:
+        cfg = self.config
+        if len(dets) < cfg.min_markers:
             return False
-        if self._image_size is not None and tuple(dets.image_size) != self._image_size:
-            self.reset()
-        geometry = view_geometry(dets, self.board)
+        size = (int(dets.image_size[0]), int(dets.image_size[1]))
+        # The pose costs a PnP solve: outside the lock, it depends on this view only.
+        geometry = view_geometry(*solve_points(dets, self.board, cfg.points), size)
         with self._lock:
-            if len(self._views) >= self.config.max_stored or not self._is_new(dets, geometry):
+            # The size test, the reset and the append are one step: a reset or a view of
+            # another size coming in between must not leave views of two sizes together.
+            if self._image_size is not None and size != self._image_size:
+                self._clear()
+            if len(self._views) >= cfg.max_stored or not self._is_new(dets, geometry, cfg):
                 return False
-            self._image_size = (int(dets.image_size[0]), int(dets.image_size[1]))
+            self._image_size = size
             self._views.append(dets)
             self._geometry.append(geometry)
-            self._counts += self._cell_counts(dets)
+            self._counts += geometry.cells.reshape(self._counts.shape)
             return True
-
-    def _cell_counts(self, dets: Detections) -> np.ndarray:
-        w, h = dets.image_size
-        rows, cols = self.config.grid_rows, self.config.grid_cols
-        pts = dets.corners_px.reshape(-1, 2)
-        c = np.clip((pts[:, 0] + 0.5) * cols / w, 0, cols - 1).astype(np.int64)
-        r = np.clip((pts[:, 1] + 0.5) * rows / h, 0, rows - 1).astype(np.int64)
-        counts = np.zeros((rows, cols), np.int64)
-        # One count per view and cell: a view crowding one cell is still one view there.
-        counts[r, c] = 1
-        return counts
 
     # --- queries ------------------------------------------------------------------
     @property
@@ -220,41 +348,52 @@ class ViewCollector:
     @property
     def image_size(self) -> tuple[int, int] | None:
         """(width, height) of the kept views, pixels; None before the first."""
-        return self._image_size
+        with self._lock:
+            return self._image_size
 
     def counts(self) -> np.ndarray:
-        """(grid_rows, grid_cols) int64: how many kept views put a point in each cell."""
+        """(rows, cols) int64 over :data:`COVERAGE_GRID`: kept views with a point in each cell."""
         with self._lock:
             return self._counts.copy()
 
     def coverage(self) -> float:
         """Fraction (0..1) of grid cells holding a point of some kept view."""
         with self._lock:
-            return float((self._counts > 0).mean())
+            return coverage_fraction(self._counts.reshape(-1) > 0)
 
     def readiness(self) -> Readiness:
         """Views, coverage and tilt so far, and what is missing, in words."""
-        cfg = self.config
+        return self.snapshot().readiness
+
+    def snapshot(self) -> Snapshot:
+        """Views, image size, counts and readiness of one and the same collection."""
         with self._lock:
-            n = len(self._views)
+            cfg = self._config
+            views = list(self._views)
+            size = self._image_size
             counts = self._counts.copy()
             lr = sum(abs(g.tilt_x_deg) > cfg.tilt_deg for g in self._geometry)
             ud = sum(abs(g.tilt_y_deg) > cfg.tilt_deg for g in self._geometry)
-        covered = float((counts > 0).mean())
-        missing: list[str] = []
-        if n < cfg.min_views:
-            missing.append(_count(cfg.min_views - n, "more view"))
-        if covered < cfg.min_coverage:
-            empty = empty_regions(counts)
-            where = f" (nothing yet at {', '.join(empty)})" if empty else ""
-            missing.append(f"coverage {covered:.0%} of {cfg.min_coverage:.0%}{where}")
-        if lr < 2:
-            missing.append(f"{_count(2 - lr, 'view')} with the board turned left or right "
-                           f"by more than {cfg.tilt_deg:g} deg")
-        if ud < 2:
-            missing.append(f"{_count(2 - ud, 'view')} with the board tipped up or down "
-                           f"by more than {cfg.tilt_deg:g} deg")
-        return Readiness(n, cfg.min_views, covered, cfg.min_coverage, lr, ud, tuple(missing))
+        return Snapshot(views, size, counts, _readiness(cfg, len(views), counts, lr, ud))
+
+
+def _readiness(cfg: CoverageConfig, n: int, counts: np.ndarray, lr: int, ud: int) -> Readiness:
+    """What is missing, given the views kept, their cell counts and tilted views."""
+    covered = coverage_fraction(counts.reshape(-1) > 0)
+    missing: list[str] = []
+    if n < cfg.min_views:
+        missing.append(_count(cfg.min_views - n, "more view"))
+    if covered < MIN_COVERAGE:
+        empty = empty_regions(counts)
+        where = f" (nothing yet at {', '.join(empty)})" if empty else ""
+        missing.append(f"coverage {covered:.0%} of {MIN_COVERAGE:.0%}{where}")
+    if lr < 2:
+        missing.append(f"{_count(2 - lr, 'view')} with the board turned left or right "
+                       f"by more than {cfg.tilt_deg:g} deg")
+    if ud < 2:
+        missing.append(f"{_count(2 - ud, 'view')} with the board tipped up or down "
+                       f"by more than {cfg.tilt_deg:g} deg")
+    return Readiness(n, cfg.min_views, covered, MIN_COVERAGE, lr, ud, tuple(missing))
 
 
 def _count(n: int, noun: str) -> str:
@@ -276,3 +415,4 @@ def empty_regions(counts: np.ndarray) -> list[str]:
         if block.size and (block > 0).mean() < 0.5:
             out.append(name)
     return out
+

@@ -9,6 +9,7 @@ dropped.
 
 from __future__ import annotations
 
+import contextlib
 import threading
 from collections.abc import Callable
 from typing import Generic, TypeVar
@@ -34,8 +35,8 @@ class LatestWorker(Generic[T]):
         self._has_item = False
         self._stopping = False
         self._busy = False
-        self.dropped = 0
-        self.taken = 0
+        self._dropped = 0
+        self._taken = 0
         self._thread = threading.Thread(target=self._run, name=name, daemon=True)
         self._thread.start()
 
@@ -44,16 +45,29 @@ class LatestWorker(Generic[T]):
         with self._cond:
             replaced = self._has_item
             if replaced:
-                self.dropped += 1
+                self._dropped += 1
             self._item = item
             self._has_item = True
             self._cond.notify()
             return not replaced
 
     @property
+    def dropped(self) -> int:
+        """Items replaced before the worker took them."""
+        with self._cond:
+            return self._dropped
+
+    @property
+    def taken(self) -> int:
+        """Items handed to the handler."""
+        with self._cond:
+            return self._taken
+
+    @property
     def busy(self) -> bool:
-        """Whether the handler is running now."""
-        return self._busy
+        """Whether the handler is running now (an item taken and not yet finished)."""
+        with self._cond:
+            return self._busy
 
     def _run(self) -> None:
         while True:
@@ -66,13 +80,17 @@ class LatestWorker(Generic[T]):
                 self._item = None
                 self._has_item = False
                 self._busy = True
-                self.taken += 1
+                self._taken += 1
             try:
                 self._handler(item)  # type: ignore[arg-type]
             except Exception as e:
-                self._on_error(e)
+                # An error handler that fails (say, logging during shutdown) has nowhere
+                # left to report to; the worker must live on for the next item regardless.
+                with contextlib.suppress(Exception):
+                    self._on_error(e)
             finally:
-                self._busy = False
+                with self._cond:
+                    self._busy = False
 
     def stop(self, timeout: float = 1.0) -> None:
         """Ask the thread to end and wait up to ``timeout`` seconds (it is a daemon)."""
