@@ -202,14 +202,14 @@ def detect_all_frames(bag: Path, cache: Path, frames: int = 2000, workers: int =
 def bag_benchmark(work: Path) -> dict[str, Any]:
     """Section 3: a 2,000-frame bag, the command's wall time and accuracy vs every frame."""
     from artcal_ros.cli import calibrate as command
-    from artcal_ros.cli.synth import write_dataset
     from artcal_ros.core.calibrate.solve import bundle_adjust, free_parameters
     from artcal_ros.core.calibrate.views import (
-        lens_corrected_centres,
+        lens_corrected_centers,
         view_points,
         view_problem,
     )
     from artcal_ros.core.camera_info import read_camera_info_yaml
+    from artcal_ros.synth.dataset import write_dataset
 
     cam = Camera.preset("webcam")
     bag = work / "bag2000"
@@ -242,7 +242,7 @@ def bag_benchmark(work: Path) -> dict[str, Any]:
     views = [view_points(d, BOARD, "centers", k) for k, d in enumerate(dets)]
     views = [v for v in views if view_problem(v, BOARD) is None]
     K0, D0 = selected.camera_matrix, selected.dist_coeffs
-    views = [lens_corrected_centres(v, K0, D0, "plumb_bob") for v in views]
+    views = [lens_corrected_centers(v, K0, D0, "plumb_bob") for v in views]
     K, D, _, _ = bundle_adjust(views, K0, D0, "plumb_bob",
                                free=free_parameters("plumb_bob", False), weighted=True)
     out["all_frames_s"] = time.monotonic() - t0

@@ -5,6 +5,10 @@
     artcal calibrate IMAGE... --params P [--set KEY=VALUE]... --output camera.yaml [--report DIR]
     artcal calibrate --bag BAG [--topic T] --params P --output camera.yaml [--report DIR]
 
+The solve options are the parameters file's (``camera_model``, ``points``, ``max_views``,
+``calibrate.*``), as for the calibrator node; the detection, solve, write and summary are
+the session path the node uses too (:mod:`artcal_ros.core.calibrate.session`).
+
 Exit status: 0 written; 1 the views cannot support a calibration (the reason is
 printed and no file is written, an existing one is left as it was); 2 bad usage or
 input.
@@ -17,6 +21,7 @@ import json
 import sys
 import time
 from collections.abc import Iterator
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -25,11 +30,10 @@ import numpy as np
 from artcal_ros.cli.common import add_params_arguments, params_from_args
 from artcal_ros.cli.progress import Progress
 from artcal_ros.core.board import Board
-from artcal_ros.core.calibrate import CalibrationResult, calibrate
-from artcal_ros.core.camera_info import write_camera_info_yaml
+from artcal_ros.core.calibrate import CalibrationResult
+from artcal_ros.core.calibrate.session import detect_views, session_summary, solve_session
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
-from artcal_ros.core.params import output_path
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 DEFAULT_TOPIC = "/camera/image_raw"
@@ -48,8 +52,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                              "else ~/.ros/camera_info/<camera_name>.yaml)")
     parser.add_argument("--report", metavar="DIR",
                         help="also write summary.json and PNG plots into DIR")
-    parser.add_argument("--max-views", type=int, default=40, metavar="N",
-                        help="solve from at most N diverse views (default 40)")
+    parser.add_argument("--max-views", type=int, default=None, metavar="N",
+                        help="solve from at most N diverse views (default: the max_views "
+                             "parameter, 40)")
     parser.add_argument("--max-frames", type=int, default=400, metavar="N",
                         help="from a bag, detect markers in at most N frames spread evenly "
                              "over the recording (default 400; 0 = every frame)")
@@ -57,7 +62,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="from a bag, space the frames so that reading and detecting "
                              "take about S seconds (default 40; 0 = no limit)")
     parser.add_argument("--k3", action="store_true",
-                        help="also estimate k3 (plumb_bob; for strong wide-angle distortion)")
+                        help="deprecated: the same as --set calibrate.k_coefficients=3 "
+                             "(plumb_bob: also estimate k3, for strong wide-angle distortion)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
@@ -139,95 +145,47 @@ def _file_frames(paths: list[str], quiet: bool) -> Iterator[tuple[str, np.ndarra
         yield path, _read_image(path)
 
 
-def detect_frames(frames: Iterator[tuple[str, np.ndarray]],
-                  board: Board) -> tuple[list[Detections], tuple[int, int]]:
-    """Detect markers in every frame; all frames must share one size.
-
-    Returns:
-        (detections, (width, height)).
-    """
-    from artcal_ros.core.detect import Detector
-
-    detector = Detector(board)
-    dets: list[Detections] = []
-    size: tuple[int, int] | None = None
-    for source, image in frames:
-        h, w = image.shape[:2]
-        if size is None:
-            size = (w, h)
-        elif size != (w, h):
-            raise ImageFormatError(f"{source} is {w}x{h} but the first image is "
-                                   f"{size[0]}x{size[1]}; calibrate one camera at a time")
-        dets.append(detector.detect(image, source=source))
-    if size is None:
-        raise ParameterError("no images: give image files or --bag BAG")
-    return dets, size
-
-
-def summary_text(result: CalibrationResult, frames: int, seconds: float, out: Path) -> str:
-    """The one-screen summary printed at the end."""
-    K = result.camera_matrix
-    s = result.std_devs
-    lines = [
-        f"camera: {result.model}, {result.image_size[0]}x{result.image_size[1]}, points: "
-        f"{result.points}",
-        f"  fx {K[0, 0]:10.3f} ± {s.get('fx', np.nan):.3f}   fy {K[1, 1]:10.3f} ± "
-        f"{s.get('fy', np.nan):.3f}",
-        f"  cx {K[0, 2]:10.3f} ± {s.get('cx', np.nan):.3f}   cy {K[1, 2]:10.3f} ± "
-        f"{s.get('cy', np.nan):.3f}",
-        "  distortion " + "  ".join(
-            f"{n} {v:.5g}±{s[n]:.2g}" if n in s else f"{n} {v:.5g} (fixed)"
-            for n, v in zip(result.to_summary_dict()["distortion"], result.dist_coeffs,
-                            strict=True)),
-        f"reprojection error: RMS {result.reprojection_rms_px:.3f} px, std "
-        f"{result.reprojection_std_px:.3f} px, max {result.reprojection_max_px:.3f} px",
-        f"hold-out (k-fold over views) RMS: {result.holdout_rms_px:.3f} px; projection "
-        f"uncertainty RMS {result.projection_uncertainty_rms_px:.3f} px, max "
-        f"{result.projection_uncertainty_max_px:.3f} px",
-        f"views: {frames} read, {len(result.views_used)} used, "
-        f"{len(result.views_dropped)} left out; {result.points_dropped} outlier points; "
-        f"image coverage {100 * result.coverage:.0f}%",
-    ]
-    reasons: dict[str, int] = {}
-    for d in result.views_dropped:
-        key = d.reason.split(":")[0]
-        reasons[key] = reasons.get(key, 0) + 1
-    for reason, count in sorted(reasons.items(), key=lambda kv: -kv[1])[:4]:
-        lines.append(f"  {count} x {reason}")
-    for w in result.warnings:
-        lines.append(f"warning: {w}")
-    lines.append(f"wrote {out} ({seconds:.1f} s)")
-    return "\n".join(lines)
+def _k3_alias(args: argparse.Namespace, params: dict[str, Any]) -> dict[str, Any]:
+    """The parameters with the deprecated ``--k3`` applied (calibrate.k_coefficients = 3)."""
+    if not args.k3:
+        return params
+    print("artcal calibrate: --k3 is deprecated; use --set calibrate.k_coefficients=3",
+          file=sys.stderr)
+    if params["camera_model"] != "plumb_bob":
+        raise ParameterError(f"--k3 is for camera_model plumb_bob, not {params['camera_model']}; "
+                             "set calibrate.k_coefficients instead")
+    if int(params["calibrate.k_coefficients"]) not in (0, 3):
+        raise ParameterError(f"--k3 contradicts calibrate.k_coefficients="
+                             f"{params['calibrate.k_coefficients']}; give one of them")
+    return {**params, "calibrate.k_coefficients": 3}
 
 
 def run(args: argparse.Namespace) -> int:
     """Run the verb; see the module docstring for the exit status."""
-    start = time.monotonic()
-    params = params_from_args(args)
+    params = _k3_alias(args, params_from_args(args))
     board = Board.from_params(params)
     if bool(args.images) == bool(args.bag):
         raise ParameterError("give either image files or --bag BAG (not both, not neither)")
     if args.topic and not args.bag:
         raise ParameterError("--topic needs --bag")
-    if args.max_views < 3:
+    if args.max_views is not None and args.max_views < 3:
         raise ParameterError(f"--max-views {args.max_views}: must be at least 3")
-    out = Path(args.output).expanduser() if args.output else output_path(params)
     frames = (_bag_frames(args.bag, args.topic, args.max_frames, args.time_budget, args.quiet)
               if args.bag
               else _file_frames(list(args.images), args.quiet))
-    dets, size = detect_frames(frames, board)
+    start = time.monotonic()
+    dets, size = detect_views(frames, board)
 
     def say(msg: str) -> None:
         if not args.quiet:
             print(f"calibrate: {msg}", file=sys.stderr)
 
-    result = calibrate(dets, board, image_size=size, model=str(params["camera_model"]),
-                       points=str(params["points"]), max_views=args.max_views, k3=args.k3,
-                       progress=say)
-    write_camera_info_yaml(out, result, camera_name=str(params["camera_name"]))
+    session = solve_session(dets, board, size, params, output=args.output,
+                            max_views=args.max_views, progress=say)
     if args.report:
-        write_report(Path(args.report), result, dets)
-    print(summary_text(result, len(dets), time.monotonic() - start, out))
+        write_report(Path(args.report), session.result, dets)
+    # The session's time is the solve's; the user waited for the detection too.
+    print(session_summary(replace(session, seconds=time.monotonic() - start), long=True))
     return 0
 
 

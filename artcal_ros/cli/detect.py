@@ -72,13 +72,13 @@ def draw_detections(image: np.ndarray, dets: Detections) -> np.ndarray:
     shift = 4
     scale = float(1 << shift)
     thick = max(1, round(min(out.shape[:2]) / 480))
-    for marker_id, quad, centre in zip(dets.ids, dets.corners_px, dets.centers_px, strict=True):
+    for marker_id, quad, center in zip(dets.ids, dets.corners_px, dets.centers_px, strict=True):
         pts = np.round(quad * scale).astype(np.int32)
         cv2.polylines(out, [pts], True, (0, 200, 0), thick, cv2.LINE_AA, shift)
         for p in pts:
             cv2.circle(out, (int(p[0]), int(p[1])), int(2 * scale), (0, 0, 255), thick,
                        cv2.LINE_AA, shift)
-        c = np.round(centre * scale).astype(np.int32)
+        c = np.round(center * scale).astype(np.int32)
         cv2.drawMarker(out, (int(c[0] >> shift), int(c[1] >> shift)), (255, 80, 0),
                        cv2.MARKER_CROSS, 6 * thick, thick)
         cv2.putText(out, str(int(marker_id)), (int(quad[0, 0]) + 2, int(quad[0, 1]) - 3),

@@ -300,7 +300,9 @@ class CameraModel:
         Kinv = np.linalg.inv(self.K)
         xy = (np.c_[p, np.ones(len(p))] @ Kinv.T)[:, :2]
         if self.model == "equidistant":
-            out = cv2.fisheye.distortPoints(xy.reshape(-1, 1, 2), self.K, self.dist[:4])
+            # OpenCV reads the buffer as packed: a strided view would be misread
+            out = cv2.fisheye.distortPoints(np.ascontiguousarray(xy).reshape(-1, 1, 2), self.K,
+                                            self.dist[:4])
         else:
             obj = np.c_[xy, np.ones(len(xy))].reshape(-1, 1, 3)
             out, _ = cv2.projectPoints(obj, np.zeros(3), np.zeros(3), self.K, self.dist)

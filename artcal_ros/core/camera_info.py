@@ -22,7 +22,7 @@ from __future__ import annotations
 
 import os
 import tempfile
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
 
@@ -30,9 +30,8 @@ import cv2
 import numpy as np
 import yaml
 
+from artcal_ros.core.camera import LENS_MODELS, CameraModel, HasCamera
 from artcal_ros.core.errors import ArtcalError, CalibrationError
-
-DISTORTION_LENGTHS = {"plumb_bob": 5, "rational_polynomial": 8, "equidistant": 4}
 
 
 @dataclass(frozen=True)
@@ -57,10 +56,34 @@ class CameraInfoData:
     rectification_matrix: np.ndarray
     projection_matrix: np.ndarray
 
+    @classmethod
+    def from_camera(cls, camera: CameraModel, camera_name: str = "camera") -> CameraInfoData:
+        """The CameraInfo of a calibrated monocular camera: R = I, P as ROS computes it."""
+        return cls(camera.size, camera_name, camera.K.copy(), camera.model, camera.dist.copy(),
+                   np.eye(3), projection_matrix(camera.K, camera.dist, camera.model,
+                                                camera.size))
+
     @property
-    def model(self) -> str:
-        """Same as ``distortion_model`` (so the data reads like a camera)."""
-        return self.distortion_model
+    def camera(self) -> CameraModel:
+        """The camera the file describes.
+
+        Raises:
+            ParameterError: the distortion model is not one artcal_ros knows.
+        """
+        return CameraModel(self.distortion_model, self.camera_matrix, self.dist_coeffs,
+                           self.image_size)
+
+
+def as_camera_info(calibration: CameraInfoData | CameraModel | HasCamera,
+                   camera_name: str | None = None) -> CameraInfoData:
+    """The CameraInfo content of a calibration: a CameraInfoData as it is (renamed if
+    ``camera_name`` is given), a CameraModel, or a result with a ``camera``."""
+    if isinstance(calibration, CameraInfoData):
+        if camera_name is None or camera_name == calibration.camera_name:
+            return calibration
+        return replace(calibration, camera_name=camera_name)
+    camera = calibration if isinstance(calibration, CameraModel) else calibration.camera
+    return CameraInfoData.from_camera(camera, "camera" if camera_name is None else camera_name)
 
 
 def projection_matrix(camera_matrix: np.ndarray, dist_coeffs: np.ndarray, model: str,
@@ -94,20 +117,25 @@ def _matrix(rows: int, cols: int, values: np.ndarray) -> str:
     return f"  rows: {rows}\n  cols: {cols}\n  data: [{data}]\n"
 
 
-def camera_info_yaml(result: Any, camera_name: str = "camera") -> str:
-    """The YAML text of a calibration (a CalibrationResult or a :class:`CameraInfoData`)."""
-    K = np.asarray(result.camera_matrix, dtype=np.float64).reshape(3, 3)
-    model = str(getattr(result, "model", getattr(result, "distortion_model", "")))
-    D: np.ndarray = np.asarray(result.dist_coeffs, dtype=np.float64).ravel()
-    w, h = (int(result.image_size[0]), int(result.image_size[1]))
-    if model in DISTORTION_LENGTHS and len(D) < DISTORTION_LENGTHS[model]:
-        D = np.concatenate([D, np.zeros(DISTORTION_LENGTHS[model] - len(D))])
-    R = np.asarray(getattr(result, "rectification_matrix", np.eye(3)), np.float64).reshape(3, 3)
-    P = getattr(result, "projection_matrix", None)
-    P = projection_matrix(K, D, model, (w, h)) if P is None else np.asarray(P).reshape(3, 4)
+def camera_info_yaml(calibration: CameraInfoData | CameraModel | HasCamera,
+                     camera_name: str | None = None) -> str:
+    """The YAML text of a calibration (see :func:`as_camera_info` for what it takes).
+
+    Raises:
+        CalibrationError: the calibration holds non-finite numbers.
+    """
+    info = as_camera_info(calibration, camera_name)
+    K = np.asarray(info.camera_matrix, dtype=np.float64).reshape(3, 3)
+    D: np.ndarray = np.asarray(info.dist_coeffs, dtype=np.float64).ravel()
+    model = info.distortion_model
+    w, h = (int(info.image_size[0]), int(info.image_size[1]))
+    if model in LENS_MODELS and len(D) < LENS_MODELS[model].n_dist:
+        D = np.concatenate([D, np.zeros(LENS_MODELS[model].n_dist - len(D))])
+    R = np.asarray(info.rectification_matrix, np.float64).reshape(3, 3)
+    P = np.asarray(info.projection_matrix, np.float64).reshape(3, 4)
     if not (np.all(np.isfinite(K)) and np.all(np.isfinite(D)) and np.all(np.isfinite(P))):
         raise CalibrationError("the calibration holds non-finite numbers; nothing was written")
-    name = str(camera_name)
+    name = str(info.camera_name)
     if not name or any(c in name for c in ":#\n{}[],&*!|>'\"%@`"):
         name = yaml.safe_dump(name, default_style='"').strip()
     return (f"image_width: {w}\nimage_height: {h}\ncamera_name: {name}\n"
@@ -118,8 +146,9 @@ def camera_info_yaml(result: Any, camera_name: str = "camera") -> str:
             f"projection_matrix:\n{_matrix(3, 4, P.ravel())}")
 
 
-def write_camera_info_yaml(path: str | os.PathLike[str], result: Any,
-                           camera_name: str = "camera") -> Path:
+def write_camera_info_yaml(path: str | os.PathLike[str],
+                           calibration: CameraInfoData | CameraModel | HasCamera,
+                           camera_name: str | None = None) -> Path:
     """Write a calibration as camera_calibration_parsers YAML, atomically.
 
     The text is built and checked first, written to a temporary file in the same
@@ -128,9 +157,9 @@ def write_camera_info_yaml(path: str | os.PathLike[str], result: Any,
 
     Args:
         path: the file to write (parent directories are created).
-        result: a CalibrationResult (or anything with camera_matrix, dist_coeffs, model,
-            image_size).
-        camera_name: the ``camera_name`` field.
+        calibration: a CalibrationResult, a CameraModel or a CameraInfoData.
+        camera_name: the ``camera_name`` field (default: the CameraInfoData's, else
+            ``camera``).
 
     Returns:
         The path written.
@@ -139,7 +168,7 @@ def write_camera_info_yaml(path: str | os.PathLike[str], result: Any,
         CalibrationError: the result holds non-finite numbers (nothing written).
         ArtcalError: the file cannot be written.
     """
-    text = camera_info_yaml(result, camera_name)
+    text = camera_info_yaml(calibration, camera_name)
     target = Path(path).expanduser()
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
@@ -209,26 +238,3 @@ def read_camera_info_yaml(path: str | os.PathLike[str]) -> CameraInfoData:
     P = (_read_matrix(doc, "projection_matrix", p, (3, 4))
          if "projection_matrix" in doc else projection_matrix(K, D, model, (w, h)))
     return CameraInfoData((w, h), str(doc.get("camera_name", "")), K, model, D, R, P)
-
-
-def camera_info_fields(data: Any, frame_id: str = "camera") -> dict[str, Any]:
-    """The fields of a sensor_msgs/CameraInfo message for a calibration.
-
-    Args:
-        data: a CalibrationResult or :class:`CameraInfoData`.
-        frame_id: the header's frame.
-
-    Returns:
-        dict with width, height, distortion_model, d, k, r, p (flat lists), header.
-    """
-    info = yaml.safe_load(camera_info_yaml(data, "camera"))
-    return {
-        "header": {"stamp": {"sec": 0, "nanosec": 0}, "frame_id": frame_id},
-        "width": int(info["image_width"]),
-        "height": int(info["image_height"]),
-        "distortion_model": str(info["distortion_model"]),
-        "d": [float(v) for v in info["distortion_coefficients"]["data"]],
-        "k": [float(v) for v in info["camera_matrix"]["data"]],
-        "r": [float(v) for v in info["rectification_matrix"]["data"]],
-        "p": [float(v) for v in info["projection_matrix"]["data"]],
-    }

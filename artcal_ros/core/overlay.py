@@ -65,8 +65,8 @@ def render_overlay(image: np.ndarray, dets: Detections | None, counts: np.ndarra
         for k, marker_id in enumerate(dets.ids):
             # A red dot on each marker's first (top-left on the board) corner shows orientation.
             cv2.circle(out, (int(quads[k, 0, 0]), int(quads[k, 0, 1])), thick + 1, _RED, -1)
-            centre = dets.centers_px[k]
-            cv2.putText(out, str(int(marker_id)), (int(centre[0]) - 8, int(centre[1]) + 4),
+            center = dets.centers_px[k]
+            cv2.putText(out, str(int(marker_id)), (int(center[0]) - 8, int(center[1]) + 4),
                         cv2.FONT_HERSHEY_SIMPLEX, 0.8 * scale, _YELLOW, thick, cv2.LINE_AA)
     if kept:
         cv2.rectangle(out, (0, 0), (w - 1, h - 1), _GREEN, 3 * thick)

@@ -16,6 +16,7 @@ from typing import Any
 
 import yaml
 
+from artcal_ros.core.camera import MODELS
 from artcal_ros.core.errors import ParameterError
 
 ParamValue = bool | int | float | str
@@ -30,6 +31,7 @@ class ParamSpec:
     description: str
     choices: tuple[str, ...] = ()
     check: Callable[[Any], str | None] | None = None  # returns a complaint or None
+    allowed: str = ""  # the allowed values in words, where neither choices nor type say it
 
 
 def _positive(value: Any) -> str | None:
@@ -58,7 +60,22 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("points", "corners", "Correspondences per marker: its 4 corners or its centre.",
               choices=("centers", "corners")),
     ParamSpec("camera_model", "plumb_bob", "Lens model to solve for.",
-              choices=("plumb_bob", "rational_polynomial", "equidistant")),
+              choices=MODELS),
+    # What the solve estimates, as ROS camera_calibration's flags; node and CLI alike.
+    ParamSpec("calibrate.k_coefficients", 0,
+              "Radial distortion terms solved, k1..kN (camera_calibration's --k-coefficients); "
+              "0: the model's default (k1 k2 for plumb_bob, all for the others). The terms "
+              "not solved are zero.", check=_non_negative,
+              allowed="0, or 1 to 3 (plumb_bob), 1 to 6 (rational_polynomial), "
+                      "1 to 4 (equidistant)"),
+    ParamSpec("calibrate.fix_principal_point", False,
+              "Hold the principal point at the image centre, cx = (width - 1) / 2, "
+              "cy = (height - 1) / 2 (pixel centres at integers)."),
+    ParamSpec("calibrate.fix_aspect_ratio", False,
+              "Solve one focal length: fx = fy (square pixels)."),
+    ParamSpec("calibrate.zero_tangent_dist", False,
+              "Hold the tangential distortion at zero, p1 = p2 = 0 (plumb_bob and "
+              "rational_polynomial; equidistant has none)."),
     ParamSpec("camera_name", "camera", "Name written into the calibration file."),
     ParamSpec("output_file", "",
               "Calibration YAML to write; empty means ~/.ros/camera_info/<camera_name>.yaml."),
@@ -74,6 +91,21 @@ PARAMETERS: tuple[ParamSpec, ...] = (
 )
 
 SPECS: dict[str, ParamSpec] = {s.name: s for s in PARAMETERS}
+
+
+def _k_coefficients_fit_model(values: Mapping[str, ParamValue]) -> str | None:
+    # The range depends on camera_model; the solve's table of lens models says it.
+    from artcal_ros.core.calibrate.model import k_coefficients_complaint
+
+    return k_coefficients_complaint(str(values["camera_model"]),
+                                    int(values["calibrate.k_coefficients"]))
+
+
+# Checks that involve several parameters: each returns the whole complaint (naming the
+# parameter and its allowed values) or None.
+CROSS_CHECKS: tuple[Callable[[Mapping[str, ParamValue]], str | None], ...] = (
+    _k_coefficients_fit_model,
+)
 
 
 def defaults() -> dict[str, ParamValue]:
@@ -130,8 +162,13 @@ def validate(values: Mapping[str, Any]) -> dict[str, ParamValue]:
         if spec.check is not None:
             complaint = spec.check(v)
             if complaint:
-                raise ParameterError(f"parameter '{name}': {v!r} {complaint}")
+                allowed = f" (allowed: {spec.allowed})" if spec.allowed else ""
+                raise ParameterError(f"parameter '{name}': {v!r} {complaint}{allowed}")
         out[name] = v
+    for cross in CROSS_CHECKS:
+        complaint = cross(out)
+        if complaint:
+            raise ParameterError(complaint)
     return out
 
 

@@ -38,6 +38,7 @@ from std_srvs.srv import Trigger
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate.session import SolveOutcome, busy_threads, run_solve
+from artcal_ros.core.camera_info import as_camera_info
 from artcal_ros.core.coverage import CoverageConfig, ViewCollector
 from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
 from artcal_ros.core.overlay import render_heat_map, render_overlay
@@ -73,14 +74,20 @@ class CalibratorNode(Node):
         from artcal_ros.core.detect import Detector, DetectorConfig
 
         self.detector = Detector(self.board, DetectorConfig())
+        # Coverage is counted on the points the solve will use, as the solve counts it.
         self.collector = ViewCollector(
-            self.board, CoverageConfig(min_views=int(self.params["min_views"])))
+            self.board, CoverageConfig(min_views=int(self.params["min_views"]),
+                                       points=str(self.params["points"])))
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.counters = Counters()
         self.frame_id = "camera"
         self.last_summary = ""
         self._solving = threading.Lock()
         self._stopping = threading.Event()
+        # Held to publish the heat map and the overlay: the latched heat map follows the
+        # collection's changes in order, and nothing is published after stop().
+        self._output_lock = threading.Lock()
+        self._closed = False
 
         images = MutuallyExclusiveCallbackGroup()
         services = ReentrantCallbackGroup()
@@ -113,47 +120,59 @@ class CalibratorNode(Node):
     # --- images -------------------------------------------------------------------
     def _on_image(self, msg: Image | CompressedImage) -> None:
         # Executor thread: hand over and return; the worker does the work.
-        self.counters.seen += 1
+        self.counters.frame_seen()
         self.worker.offer(msg)
 
     def _process(self, msg: Image | CompressedImage) -> None:
         from artcal_ros.core.images import compressed_to_numpy, image_to_numpy
 
+        if self._stopping.is_set():
+            return  # shutting down: the node's entities may be gone
         try:
             image = compressed_to_numpy(msg) if isinstance(msg, CompressedImage) \
                 else image_to_numpy(msg)
         except ImageFormatError as e:
-            self.counters.broken += 1
+            self.counters.frame_broken()
             self.get_logger().warning(f"skipping a broken frame: {e}",
                                       throttle_duration_sec=5.0)
             return
         self.frame_id = msg.header.frame_id or self.frame_id
         dets = self.detector.detect(image)
-        self.counters.processed += 1
-        self.counters.markers_last = len(dets)
+        self.counters.frame_processed(len(dets))
         kept = self.collector.add(dets)
         if kept:
-            self.counters.used += 1
             self._publish_coverage()
-        if self.overlay_pub.get_subscription_count() > 0:
-            picture = render_overlay(image, dets, self.collector.counts(),
-                                     self.collector.readiness(), kept=kept)
-            self.overlay_pub.publish(msgs.bgr8_image(picture, msgs.header(msg.header.stamp,
-                                                                          self.frame_id)))
+        if self._stopping.is_set() or self.overlay_pub.get_subscription_count() == 0:
+            return
+        snap = self.collector.snapshot()  # counts and text of one and the same collection
+        picture = render_overlay(image, dets, snap.counts, snap.readiness, kept=kept)
+        overlay = msgs.bgr8_image(picture, msgs.header(msg.header.stamp, self.frame_id))
+        with self._output_lock:
+            if not self._closed:
+                self.overlay_pub.publish(overlay)
 
     def _on_worker_error(self, error: BaseException) -> None:
-        self.counters.failed += 1
+        self.counters.frame_failed()
+        if self._stopping.is_set():
+            return  # shutting down: a publisher already destroyed is no detection failure
         self.get_logger().error(f"detection failed on a frame: {error!r}",
                                 throttle_duration_sec=5.0)
 
     def _publish_coverage(self) -> None:
-        picture = render_heat_map(self.collector.counts(), self.collector.image_size)
-        stamp = self.get_clock().now().to_msg()
-        self.coverage_pub.publish(msgs.bgr8_image(picture, msgs.header(stamp, self.frame_id)))
+        # Read and publish under one lock: the worker (a new view) and a service (a reset)
+        # may publish at once, and an older map must not stay latched after a newer one.
+        with self._output_lock:
+            if self._closed:
+                return
+            snap = self.collector.snapshot()
+            picture = render_heat_map(snap.counts, snap.image_size)
+            stamp = self.get_clock().now().to_msg()
+            self.coverage_pub.publish(msgs.bgr8_image(picture,
+                                                      msgs.header(stamp, self.frame_id)))
 
     def _publish_diagnostics(self) -> None:
         self.diag_pub.publish(diagnostic_array(
-            self.get_name(), str(self.params["camera_name"]), self.counters,
+            self.get_name(), str(self.params["camera_name"]), self.counters.report(),
             self.worker.dropped, self.collector.readiness(), self.last_summary,
             self.get_clock().now().to_msg()))
 
@@ -183,11 +202,12 @@ class CalibratorNode(Node):
         return response
 
     def _calibrate(self) -> SolveOutcome:
-        readiness = self.collector.readiness()
+        # One snapshot: separate reads could pair the views with another collection's size
+        # (or none) when a ~/reset or a new image size comes in between.
+        snap = self.collector.snapshot()
+        readiness, views, size = snap.readiness, snap.views, snap.image_size
         if not readiness.enough_views:
             return SolveOutcome(False, f"not enough views to calibrate: {readiness.summary()}")
-        views = self.collector.views
-        size = self.collector.image_size
         assert size is not None  # there are views
         self.get_logger().info(f"solving from {len(views)} views ({readiness.summary()})")
         outcome = run_solve(views, self.board, size, self.params, readiness,
@@ -195,7 +215,8 @@ class CalibratorNode(Node):
         if outcome.result is None:
             return outcome
         stamp = self.get_clock().now().to_msg()
-        info = msgs.camera_info(outcome.result, msgs.header(stamp, self.frame_id))
+        info = msgs.camera_info(as_camera_info(outcome.result),
+                                msgs.header(stamp, self.frame_id))
         self.info_pub.publish(info)
         self.last_summary = outcome.message
         if self.params["commit"]:
@@ -224,9 +245,7 @@ class CalibratorNode(Node):
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response
                   ) -> Trigger.Response:
-        n = len(self.collector.views)
-        self.collector.reset()
-        self.counters.used = 0
+        n = self.collector.reset()
         self._publish_coverage()
         response.success = True
         response.message = f"cleared {n} views"
@@ -236,14 +255,26 @@ class CalibratorNode(Node):
     def _on_set_parameters(self, changes: list[Parameter]) -> Any:
         values, result = check_update(self.params, changes)
         if values is not None:
+            solve_options = [f"{n} = {values[n]}" for n in sorted(values)
+                             if n.startswith("calibrate.") and values[n] != self.params[n]]
+            # One assignment: a solve starting now reads either the old or the new values.
             self.params = values
             self.collector.config = replace(self.collector.config,
                                             min_views=int(values["min_views"]))
+            if solve_options:
+                self.get_logger().info(f"{', '.join(solve_options)}: the next ~/calibrate "
+                                       "solves with it")
         return result
 
     def stop(self) -> None:
-        """Stop the detection worker and any solve waiting (for shutdown)."""
+        """Stop the detection worker and any solve waiting (for shutdown).
+
+        After this returns nothing more is published (a frame still in detection finishes
+        without output), so the node may be destroyed while the worker winds down.
+        """
         self._stopping.set()
+        with self._output_lock:  # waits for a publish in progress
+            self._closed = True
         self.worker.stop(timeout=0.5)
 
 

@@ -3,12 +3,13 @@
 from __future__ import annotations
 
 import importlib
-from typing import Any
 
 import numpy as np
 from builtin_interfaces.msg import Time
 from sensor_msgs.msg import CameraInfo, Image
 from std_msgs.msg import Header
+
+from artcal_ros.core.camera_info import CameraInfoData
 
 
 def header(stamp: Time, frame_id: str) -> Header:
@@ -24,19 +25,20 @@ def bgr8_image(image_bgr: np.ndarray, hdr: Header) -> Image:
                  data=arr.tobytes())
 
 
-def camera_info(result: Any, hdr: Header) -> CameraInfo:
-    """A sensor_msgs/CameraInfo from a calibration result, with the same numbers as its YAML.
+def camera_info(info: CameraInfoData, hdr: Header) -> CameraInfo:
+    """A sensor_msgs/CameraInfo with the numbers of a calibration's YAML.
 
     Args:
-        result: a CalibrationResult.
+        info: the calibration (``as_camera_info(result)`` of a CalibrationResult).
         hdr: header; frame_id should be the camera's optical frame (the images' frame_id).
     """
-    from artcal_ros.core.camera_info import camera_info_fields
+    def flat(a: np.ndarray) -> list[float]:
+        return [float(v) for v in np.asarray(a, dtype=np.float64).ravel()]
 
-    fields = camera_info_fields(result)
-    return CameraInfo(header=hdr, width=fields["width"], height=fields["height"],
-                      distortion_model=fields["distortion_model"], d=fields["d"],
-                      k=fields["k"], r=fields["r"], p=fields["p"])
+    return CameraInfo(header=hdr, width=int(info.image_size[0]), height=int(info.image_size[1]),
+                      distortion_model=info.distortion_model, d=flat(info.dist_coeffs),
+                      k=flat(info.camera_matrix), r=flat(info.rectification_matrix),
+                      p=flat(info.projection_matrix))
 
 
 def message_class(msgtype: str) -> type:

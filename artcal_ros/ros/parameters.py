@@ -5,7 +5,9 @@ description, allowed values and a read-only flag for the ones that change what
 the collected views mean (board, points, model, transport). Values are typed
 dynamically and checked by :func:`artcal_ros.core.params.validate`, so
 ``-p board.marker_length:=1`` (an integer for a float) is accepted, while
-``-p board.cols:=-1`` is refused with a message naming the parameter.
+``-p board.cols:=-1`` is refused with a message naming the parameter. The ``calibrate.*``
+options (what the solve estimates) may be changed at run time: the next ``~/calibrate``
+uses them, on the views already collected.
 """
 
 from __future__ import annotations
@@ -28,7 +30,8 @@ def _descriptor(name: str) -> ParameterDescriptor:
     spec = next(s for s in PARAMETERS if s.name == name)
     kind = {bool: "bool", int: "integer", float: "number (metres where a length)",
             str: "string"}[type(spec.default)]
-    constraints = f"one of: {', '.join(spec.choices)}" if spec.choices else kind
+    constraints = (f"one of: {', '.join(spec.choices)}" if spec.choices
+                   else f"{kind}: {spec.allowed}" if spec.allowed else kind)
     return ParameterDescriptor(
         name=name, description=spec.description, additional_constraints=constraints,
         read_only=name in READ_ONLY, dynamic_typing=True)

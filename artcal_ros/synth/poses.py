@@ -108,7 +108,7 @@ def random_poses(board: Board, cam: Camera, n: int, rng: np.random.Generator, *,
     kinds = np.array([True] * n_partial + [False] * (n - n_partial))
     rng.shuffle(kinds)
     w_m, h_m = board.size_m
-    centre = np.array([w_m / 2, h_m / 2, 0.0])
+    center = np.array([w_m / 2, h_m / 2, 0.0])
     poses: list[Pose] = []
     for partial in kinds:
         for _attempt in range(300):
@@ -119,7 +119,7 @@ def random_poses(board: Board, cam: Camera, n: int, rng: np.random.Generator, *,
                 np.array([0.0, 0.0, 1.0]), roll)
             if partial:
                 target = np.array([rng.uniform(0.1, 0.9) * w_m, rng.uniform(0.1, 0.9) * h_m, 0])
-                fit = _fit_distance(board, cam, centre, R_bc, min_distance, 4 * max_distance)
+                fit = _fit_distance(board, cam, center, R_bc, min_distance, 4 * max_distance)
                 fit = fit if fit is not None else max_distance
                 lo, top = min_distance, min(max_distance, 0.6 * fit)
                 if top <= lo:
@@ -127,7 +127,7 @@ def random_poses(board: Board, cam: Camera, n: int, rng: np.random.Generator, *,
                     lo, top = 0.4 * fit, 0.85 * fit
                 dist = math.exp(rng.uniform(math.log(lo), math.log(top)))
             else:
-                target = centre + np.array([rng.uniform(-0.08, 0.08) * w_m,
+                target = center + np.array([rng.uniform(-0.08, 0.08) * w_m,
                                             rng.uniform(-0.08, 0.08) * h_m, 0.0])
                 fit = _fit_distance(board, cam, target, R_bc, min_distance, max_distance)
                 if fit is None:
@@ -169,11 +169,11 @@ def smooth_poses(board: Board, cam: Camera, n: int, rng: np.random.Generator, *,
         return []
     n_keys = max(2, math.ceil((n - 1) / frames_per_key) + 1)
     keys = random_poses(board, cam, n_keys, rng, **kwargs)  # type: ignore[arg-type]
-    centres, rots = [], []
+    centers, rots = [], []
     for rvec, tvec in keys:
         R = cv2.Rodrigues(rvec.reshape(3, 1))[0]
         rots.append(R.T)              # R_board_cam
-        centres.append(-R.T @ tvec)   # camera centre in the board frame
+        centers.append(-R.T @ tvec)   # camera centre in the board frame
     poses: list[Pose] = []
     for i in range(n):
         k, frac = divmod(i / frames_per_key, 1.0)
@@ -181,6 +181,6 @@ def smooth_poses(board: Board, cam: Camera, n: int, rng: np.random.Generator, *,
         if i / frames_per_key >= n_keys - 1:
             frac = 1.0
         s = frac * frac * (3.0 - 2.0 * frac)
-        C = (1 - s) * centres[k] + s * centres[k + 1]
+        C = (1 - s) * centers[k] + s * centers[k + 1]
         poses.append(_pose_from(C, _slerp(rots[k], rots[k + 1], s)))
     return poses

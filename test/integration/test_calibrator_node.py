@@ -12,7 +12,6 @@ from __future__ import annotations
 import time
 from collections.abc import Iterator
 from pathlib import Path
-from types import SimpleNamespace
 from typing import Any
 
 import numpy as np
@@ -28,6 +27,7 @@ from sensor_msgs.srv import SetCameraInfo
 from std_srvs.srv import Trigger
 
 from artcal_ros.core.calibrate.quality import projection_difference
+from artcal_ros.core.camera import CameraModel
 from test.integration.frames import CalibrationBag, calibration_bag, image_messages
 from test.integration.ros_harness import (
     ROOT,
@@ -86,9 +86,8 @@ def set_parameter(probe: Probe, node_name: str, name: str, value: bool) -> None:
 
 def camera_info_accuracy(info: CameraInfo, truth: Any) -> float:
     """RMS projection difference (pixels) between the published camera and the truth."""
-    estimate = SimpleNamespace(camera_matrix=np.array(info.k).reshape(3, 3),
-                               dist_coeffs=np.array(info.d), model=info.distortion_model,
-                               image_size=(info.width, info.height))
+    estimate = CameraModel(info.distortion_model, np.array(info.k).reshape(3, 3),
+                           np.array(info.d), (info.width, info.height))
     rms, _ = projection_difference(truth, estimate)
     return rms
 
@@ -299,6 +298,33 @@ def test_commit_sends_the_result_to_set_camera_info(fed: Fed, probe: Probe) -> N
         set_parameter(probe, "cal_fed", "commit", False)
 
 
+def test_calibrate_parameters_set_at_run_time_shape_the_next_solve(fed: Fed,
+                                                                  probe: Probe) -> None:
+    # Out of range for plumb_bob: refused, naming the parameter and the allowed values.
+    request = SetParameters.Request(parameters=[ParameterMsg(
+        name="calibrate.k_coefficients",
+        value=ParameterValue(type=ParameterType.PARAMETER_INTEGER, integer_value=7))])
+    refused = probe.call(SetParameters, "/cal_fed/set_parameters", request).results[0]
+    assert not refused.successful
+    assert "calibrate.k_coefficients" in refused.reason and "1 to 3" in refused.reason
+    infos = probe.collect(CameraInfo, "/camera_info", LATCHED)
+    set_parameter(probe, "cal_fed", "calibrate.fix_aspect_ratio", True)
+    set_parameter(probe, "cal_fed", "calibrate.zero_tangent_dist", True)
+    try:
+        answer = probe.call(Trigger, "/cal_fed/calibrate", timeout=120)
+        assert answer.success, answer.message
+        assert "fx = fy" in answer.message and "views used" in answer.message
+        # The latched CameraInfo of an earlier solve may come first; wait for this one's.
+        info = wait_until(lambda: next((i for i in reversed(infos) if i.k[0] == i.k[4]), None),
+                          20, "a CameraInfo with fx = fy")
+        assert info.d[2] == 0.0 and info.d[3] == 0.0  # p1 = p2 = 0
+        assert f"fx = fy {info.k[0]:.2f}" in answer.message
+        assert "calibrate.fix_aspect_ratio = True" in fed.node.output()
+    finally:
+        set_parameter(probe, "cal_fed", "calibrate.fix_aspect_ratio", False)
+        set_parameter(probe, "cal_fed", "calibrate.zero_tangent_dist", False)
+
+
 def test_sigint_during_a_solve_exits_promptly(fed: Fed, probe: Probe) -> None:
     client = probe.node.create_client(Trigger, "/cal_fed/calibrate")
     assert client.wait_for_service(timeout_sec=20)
@@ -343,6 +369,7 @@ def test_compressed_transport(tmp_path: Path, probe: Probe, bag: CalibrationBag)
     ("camera_model:=pinhole", "camera_model", True),
     ("board.marker_length:=abc", "board.marker_length", True),
     ("max_views:=3", "max_views", False),
+    ("calibrate.k_coefficients:=4", "calibrate.k_coefficients", False),
 ])
 def test_bad_parameter_refuses_to_start(tmp_path: Path, param: str, name: str,
                                         in_file: bool) -> None:

@@ -11,7 +11,7 @@ import yaml
 
 from artcal_ros.core.camera_info import (
     CameraInfoData,
-    camera_info_fields,
+    as_camera_info,
     projection_matrix,
     read_camera_info_yaml,
     write_camera_info_yaml,
@@ -120,8 +120,26 @@ def test_equidistant_projection_is_k() -> None:
     assert np.array_equal(P[:, :3], cam.K) and np.all(P[:, 3] == 0)
 
 
-def test_camera_info_message_fields() -> None:
-    fields = camera_info_fields(_calibration(), frame_id="cam_optical")
-    assert fields["width"] == 640 and fields["distortion_model"] == "plumb_bob"
-    assert [len(fields[k]) for k in ("k", "d", "r", "p")] == [9, 5, 9, 12]
-    assert fields["header"]["frame_id"] == "cam_optical"
+def test_camera_info_message_carries_the_yaml_numbers(tmp_path: Path) -> None:
+    # The message is built from the arrays, not by printing and parsing the YAML: every
+    # number is the same double as in the file.
+    from artcal_ros.ros import msgs
+
+    cal = _calibration()
+    info = msgs.camera_info(cal, msgs.header(msgs.Time(sec=3), "cam_optical"))
+    back = read_camera_info_yaml(write_camera_info_yaml(tmp_path / "c.yaml", cal))
+    assert info.width == 640 and info.height == 480 and info.distortion_model == "plumb_bob"
+    assert info.header.frame_id == "cam_optical" and info.header.stamp.sec == 3
+    assert list(info.k) == back.camera_matrix.ravel().tolist()
+    assert list(info.d) == back.dist_coeffs.tolist()
+    assert list(info.r) == back.rectification_matrix.ravel().tolist()
+    assert list(info.p) == back.projection_matrix.ravel().tolist()
+
+
+def test_camera_info_of_a_camera_model_round_trips(tmp_path: Path) -> None:
+    cam = Camera.preset("fisheye")
+    info = as_camera_info(cam, "front")
+    assert info.camera_name == "front" and np.array_equal(info.rectification_matrix, np.eye(3))
+    back = read_camera_info_yaml(write_camera_info_yaml(tmp_path / "f.yaml", cam)).camera
+    assert back.model == "equidistant" and back.size == cam.size
+    assert np.array_equal(back.K, cam.K) and np.array_equal(back.dist, cam.dist)

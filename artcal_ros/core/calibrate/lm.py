@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 
 from artcal_ros.core.calibrate.model import (
-    DIST_NAMES,
-    INTRINSIC_NAMES,
     ViewPoints,
     estimate_pose,
+    free_columns,
+    free_jacobian,
     project,
     project_jacobian,
 )
@@ -43,7 +43,8 @@ def bundle_adjust(views: list[ViewPoints], K0: np.ndarray, D0: np.ndarray, model
     step costs one small dense solve however many views there are.
 
     Args:
-        free: names of the intrinsics to estimate (others stay at K0, D0).
+        free: names of the intrinsics to estimate (:func:`free_parameters`; the others
+            stay at K0, D0, and a tied fx = fy moves both: start from K0 with fx = fy).
         weighted: weight each point by :func:`point_weights`.
         poses: (rvecs (V, 3), tvecs (V, 3)) to start from; estimated if None.
 
@@ -56,15 +57,15 @@ def bundle_adjust(views: list[ViewPoints], K0: np.ndarray, D0: np.ndarray, model
     else:
         x_ex = np.hstack([np.asarray(poses[0]), np.asarray(poses[1])]).astype(np.float64)
     x_all = np.array([K0[0, 0], K0[1, 1], K0[0, 2], K0[1, 2], *D0], dtype=np.float64)
-    names = INTRINSIC_NAMES + DIST_NAMES[model][:len(D0)]
-    cols = np.array([names.index(n) for n in free if n in names])
-    x_in = x_all[cols]
+    groups = free_columns(model, free, len(D0))
+    x_in = np.array([x_all[g[0]] for g in groups])
     sqrt_w = [np.repeat(np.sqrt(point_weights(v) if weighted else np.ones(len(v))), 2)
               for v in views]
 
     def unpack(xi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         full = x_all.copy()
-        full[cols] = xi
+        for g, value in zip(groups, xi, strict=True):
+            full[list(g)] = value
         K = np.array([[full[0], 0.0, full[2]], [0.0, full[1], full[3]], [0.0, 0.0, 1.0]])
         return K, full[4:].copy()
 
@@ -88,7 +89,7 @@ def bundle_adjust(views: list[ViewPoints], K0: np.ndarray, D0: np.ndarray, model
         blocks = []
         for v, pose, sw in zip(views, x_ex, sqrt_w, strict=True):
             A, B = project_jacobian(v.object_points, pose[:3], pose[3:], K, D, model)
-            A = A[:, cols] * sw[:, None]
+            A = free_jacobian(A, groups) * sw[:, None]
             B = B * sw[:, None]
             r = (v.image_points - project(v.object_points, pose[:3], pose[3:], K, D,
                                           model)).ravel() * sw

@@ -7,7 +7,9 @@ Three models, named as in sensor_msgs/CameraInfo:
 - ``rational_polynomial``: (k1, k2, p1, p2, k3, k4, k5, k6).
 - ``equidistant``: OpenCV's fisheye model, (k1, k2, k3, k4).
 
-Skew is always zero.
+Skew is always zero. Which parameters a solve estimates is :class:`SolveOptions` (the
+``calibrate.*`` parameters, named after ROS camera_calibration's flags); the names in
+:func:`free_parameters` drive OpenCV's flags, the bundle adjustment and the covariance.
 """
 
 from __future__ import annotations
@@ -17,17 +19,14 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from artcal_ros.core.errors import CalibrationError
-
-MODELS = ("plumb_bob", "rational_polynomial", "equidistant")
+from artcal_ros.core.camera import LENS_MODELS
+from artcal_ros.core.camera import MODELS as MODELS  # re-exported for the solve modules
+from artcal_ros.core.errors import CalibrationError, ParameterError
 
 # Names of the intrinsic parameters in the order their standard deviations are reported.
 INTRINSIC_NAMES = ("fx", "fy", "cx", "cy")
-DIST_NAMES = {
-    "plumb_bob": ("k1", "k2", "p1", "p2", "k3"),
-    "rational_polynomial": ("k1", "k2", "p1", "p2", "k3", "k4", "k5", "k6"),
-    "equidistant": ("k1", "k2", "k3", "k4"),
-}
+# the coefficient names of every lens model (the registry in core/camera.py)
+DIST_NAMES = {name: spec.dist_names for name, spec in LENS_MODELS.items()}
 
 @dataclass(frozen=True)
 class ViewPoints:
@@ -93,12 +92,149 @@ class Solution:
     free: tuple[str, ...]
 
 
-def free_parameters(model: str, k3: bool) -> tuple[str, ...]:
-    """Names of the parameters a solve of ``model`` estimates."""
-    names = DIST_NAMES[model]
-    if model == "plumb_bob" and not k3:
-        names = names[:4]
-    return INTRINSIC_NAMES + names
+# The one focal length of a solve with fx = fy (calibrate.fix_aspect_ratio): in a list of
+# free parameters it stands for fx and fy together.
+TIED_FOCAL = "f"
+
+
+def radial_names(model: str) -> tuple[str, ...]:
+    """The radial coefficients of ``model`` in the order ``k_coefficients`` frees them."""
+    return LENS_MODELS[model].radial
+
+
+def default_radial_terms(model: str) -> int:
+    """Radial terms solved when ``k_coefficients`` is 0: k1 k2 for plumb_bob, all otherwise.
+
+    (plumb_bob's k3 only pays for strong distortion and is extrapolated where few points
+    reach; the paper's model has k1 k2 p1 p2.)
+    """
+    return LENS_MODELS[model].default_radial
+
+
+@dataclass(frozen=True)
+class SolveOptions:
+    """Which intrinsics a solve estimates; the rest are held (ROS camera_calibration's flags).
+
+    Attributes:
+        k_coefficients: radial terms solved, k1..kN (0: the model's default, see
+            :func:`default_radial_terms`); plumb_bob allows up to 3, rational_polynomial 6,
+            equidistant 4. The terms not solved are held at zero.
+        fix_principal_point: cx, cy held at the image centre ((w - 1) / 2, (h - 1) / 2).
+        fix_aspect_ratio: fx = fy, solved as one focal length.
+        zero_tangent_dist: p1 = p2 = 0 (plumb_bob, rational_polynomial; equidistant has no
+            tangential terms, so it is always true there).
+    """
+
+    k_coefficients: int = 0
+    fix_principal_point: bool = False
+    fix_aspect_ratio: bool = False
+    zero_tangent_dist: bool = False
+
+    def radial_terms(self, model: str) -> int:
+        """Number of radial coefficients solved for ``model``."""
+        return self.k_coefficients or default_radial_terms(model)
+
+    def check(self, model: str) -> None:
+        """Raise ParameterError if ``k_coefficients`` is out of range for ``model``."""
+        complaint = k_coefficients_complaint(model, self.k_coefficients)
+        if complaint:
+            raise ParameterError(complaint)
+
+
+def k_coefficients_complaint(model: str, k: int) -> str | None:
+    """Why ``calibrate.k_coefficients = k`` does not suit ``model``, or None if it does."""
+    if model not in DIST_NAMES:
+        return None  # the model itself is refused elsewhere
+    names = radial_names(model)
+    if 0 <= k <= len(names):
+        return None
+    default = " ".join(names[:default_radial_terms(model)])
+    return (f"parameter 'calibrate.k_coefficients': {k} is out of range for camera_model "
+            f"{model}; allowed: 0 (the model's default, {default}) or 1 to {len(names)} "
+            f"(k1 to {names[-1]})")
+
+
+def free_parameters(model: str, k3: bool = False, *,
+                    options: SolveOptions | None = None) -> tuple[str, ...]:
+    """Names of the parameters a solve of ``model`` estimates, in the order they are reported.
+
+    Args:
+        model: one of :data:`MODELS`.
+        k3: shorthand for ``SolveOptions(k_coefficients=3)`` with plumb_bob (ignored when
+            ``options`` is given, and for the other models).
+        options: what the solve holds fixed; :data:`TIED_FOCAL` replaces fx and fy when
+            the aspect ratio is fixed.
+    """
+    if options is None:
+        options = SolveOptions(k_coefficients=3 if k3 and model == "plumb_bob" else 0)
+    names: list[str] = [TIED_FOCAL] if options.fix_aspect_ratio else ["fx", "fy"]
+    if not options.fix_principal_point:
+        names += ["cx", "cy"]
+    radial = radial_names(model)[:options.radial_terms(model)]
+    for n in DIST_NAMES[model]:
+        if n in ("p1", "p2") and options.zero_tangent_dist:
+            continue
+        if n.startswith("k") and n not in radial:
+            continue
+        names.append(n)
+    return tuple(names)
+
+
+def free_columns(model: str, free: tuple[str, ...],
+                 n_dist: int | None = None) -> list[tuple[int, ...]]:
+    """For each free parameter, its positions in (fx, fy, cx, cy, *dist).
+
+    Args:
+        model: one of :data:`MODELS`.
+        free: names as :func:`free_parameters` gives them.
+        n_dist: distortion coefficients present (default: all of the model's); free
+            names beyond them are left out.
+    """
+    names = INTRINSIC_NAMES + DIST_NAMES[model][:n_dist]
+    return [(0, 1) if n == TIED_FOCAL else (names.index(n),) for n in free
+            if n == TIED_FOCAL or n in names]
+
+
+def free_jacobian(A: np.ndarray, groups: list[tuple[int, ...]]) -> np.ndarray:
+    """(R, p) derivatives by the free parameters from those by (fx, fy, cx, cy, *dist).
+
+    Args:
+        A: (R, 4 + n) the intrinsic Jacobian (:func:`project_jacobian`).
+        groups: :func:`free_columns`; a tied parameter's column is the sum of its members'.
+    """
+    if all(len(g) == 1 for g in groups):
+        return A[:, [g[0] for g in groups]]
+    return np.stack([A[:, g[0]] if len(g) == 1 else A[:, list(g)].sum(axis=1)
+                     for g in groups], axis=1)
+
+
+def constrain(camera_matrix: np.ndarray, dist_coeffs: np.ndarray, model: str,
+              image_size: tuple[int, int], options: SolveOptions) -> tuple[np.ndarray,
+                                                                             np.ndarray]:
+    """Intrinsics moved onto the constraints of ``options``, to start a solve from.
+
+    The held parameters get their held values (principal point at the image centre,
+    fx = fy at their mean, unsolved distortion terms at zero); the free ones are unchanged.
+
+    Args:
+        camera_matrix: (3, 3); dist_coeffs: (n,) OpenCV order for ``model``.
+        image_size: (width, height), pixels.
+
+    Returns:
+        (K (3, 3), dist (n,)), copies.
+    """
+    K = np.array(camera_matrix, dtype=np.float64)
+    dist = np.array(dist_coeffs, dtype=np.float64).ravel()
+    w, h = image_size
+    if options.fix_principal_point:
+        K[0, 2], K[1, 2] = (w - 1) / 2.0, (h - 1) / 2.0
+    if options.fix_aspect_ratio and K[0, 0] != K[1, 1]:
+        K[0, 0] = K[1, 1] = 0.5 * (K[0, 0] + K[1, 1])
+    free = free_parameters(model, options=options)
+    for i, n in enumerate(DIST_NAMES[model][:len(dist)]):
+        if n not in free:
+            dist[i] = 0.0
+    return K, dist
 
 
 def project(object_points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray,

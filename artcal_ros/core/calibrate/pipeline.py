@@ -24,31 +24,36 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from artcal_ros.core.board import Board
+from artcal_ros.core.calibrate.model import TIED_FOCAL
 from artcal_ros.core.calibrate.quality import (
-    Camera,
     cross_validate,
     fold_radius_px,
     intrinsic_covariance,
     parameter_effect_px,
+    solution_camera,
 )
 from artcal_ros.core.calibrate.solve import (
     DIST_NAMES,
     MODELS,
     Solution,
+    SolveOptions,
     ViewPoints,
     residuals,
     solve,
 )
+from artcal_ros.core.calibrate.summary import summary_dict, summary_text
 from artcal_ros.core.calibrate.views import (
     POINTS_MODES,
     check_views,
     layout_outliers,
-    lens_corrected_centres,
+    lens_corrected_centers,
     select_views,
     view_geometry,
     view_points,
     view_problem,
 )
+from artcal_ros.core.camera import CameraModel, lens_spec
+from artcal_ros.core.coverage import COVERAGE_GRID, MIN_COVERAGE
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import CalibrationError
 
@@ -67,7 +72,6 @@ def max_rms_px(image_size: tuple[int, int]) -> float:
     """The largest RMS reprojection error accepted for an image of this size, pixels."""
     return max(MAX_RMS_PX, 1e-3 * float(np.hypot(*image_size)))
 PARAM_EFFECT_WARN_PX = 0.5  # a parameter whose 1-sigma moves the image this much is weak
-MIN_COVERAGE = 0.6  # share of the image grid cells that should hold points
 
 
 class DroppedView(NamedTuple):
@@ -108,6 +112,8 @@ class CalibrationResult:
             minus projected; point_view: (P,) their view's position in the input list.
         outliers_px: (Q, 2) image points dropped as outliers.
         solve_time_s: wall time of :func:`calibrate`, seconds.
+        free: the parameters estimated (:func:`~.model.free_parameters`; ``f`` is fx = fy
+            solved as one); the others were held (``calibrate.*`` parameters).
     """
 
     camera_matrix: np.ndarray
@@ -135,52 +141,32 @@ class CalibrationResult:
     point_view: np.ndarray = field(repr=False)
     outliers_px: np.ndarray = field(repr=False)
     solve_time_s: float = 0.0
+    free: tuple[str, ...] = ()
+
+    @property
+    def camera(self) -> CameraModel:
+        """The calibrated camera (K, full distortion vector of the model, image size)."""
+        spec = lens_spec(self.model)
+        dist = np.zeros(spec.n_dist)
+        d = np.asarray(self.dist_coeffs, dtype=np.float64).ravel()[:spec.n_dist]
+        dist[:len(d)] = d
+        return CameraModel(self.model, self.camera_matrix, dist, self.image_size)
+
+    def summary(self, *, long: bool = False) -> str:
+        """The calibration in words: one line, or one screen with ``long``.
+
+        The one formatter of a result (:func:`.summary.summary_text`): the node's
+        ``~/calibrate`` answer and log and ``artcal calibrate``'s output both come from it.
+        """
+        return summary_text(self, long=long)
 
     def summary_line(self) -> str:
-        """One line: model, intrinsics with 1-sigma, errors, views."""
-        K = self.camera_matrix
-        s = self.std_devs
-        return (f"{self.model} {self.image_size[0]}x{self.image_size[1]} ({self.points}): "
-                f"fx {K[0, 0]:.2f}±{s.get('fx', np.nan):.2f} "
-                f"fy {K[1, 1]:.2f}±{s.get('fy', np.nan):.2f} "
-                f"cx {K[0, 2]:.2f}±{s.get('cx', np.nan):.2f} "
-                f"cy {K[1, 2]:.2f}±{s.get('cy', np.nan):.2f} px; reprojection RMS "
-                f"{self.reprojection_rms_px:.3f} std {self.reprojection_std_px:.3f} max "
-                f"{self.reprojection_max_px:.3f} px; hold-out {self.holdout_rms_px:.3f} px; "
-                f"{len(self.views_used)} views used, {len(self.views_dropped)} dropped, "
-                f"{self.points_dropped} outlier points")
+        """One line: model, intrinsics with 1-sigma, errors, views (``summary()``)."""
+        return summary_text(self)
 
     def to_summary_dict(self) -> dict[str, Any]:
         """JSON-ready summary (the ``summary.json`` of ``artcal calibrate --report``)."""
-        K = self.camera_matrix
-        names = DIST_NAMES[self.model]
-        return {
-            "model": self.model,
-            "points": self.points,
-            "image_width": int(self.image_size[0]),
-            "image_height": int(self.image_size[1]),
-            "intrinsics": {"fx": float(K[0, 0]), "fy": float(K[1, 1]), "cx": float(K[0, 2]),
-                           "cy": float(K[1, 2])},
-            "distortion": {n: float(v) for n, v in zip(names, self.dist_coeffs, strict=True)},
-            "std_devs": {k: float(v) for k, v in self.std_devs.items()},
-            "camera_matrix": K.tolist(),
-            "dist_coeffs": self.dist_coeffs.tolist(),
-            "reprojection_rms_px": self.reprojection_rms_px,
-            "reprojection_std_px": self.reprojection_std_px,
-            "reprojection_max_px": self.reprojection_max_px,
-            "holdout_rms_px": self.holdout_rms_px,
-            "projection_uncertainty_rms_px": self.projection_uncertainty_rms_px,
-            "projection_uncertainty_max_px": self.projection_uncertainty_max_px,
-            "coverage": self.coverage,
-            "points_used": len(self.points_px),
-            "points_dropped": int(self.points_dropped),
-            "views_used": [int(i) for i in self.views_used],
-            "per_view_rms_px": [float(e) for e in self.per_view_rms_px],
-            "views_dropped": [{"index": d.view_index, "source": d.source, "reason": d.reason}
-                              for d in self.views_dropped],
-            "warnings": list(self.warnings),
-            "solve_time_s": self.solve_time_s,
-        }
+        return summary_dict(self)
 
 
 def _stats(res: Sequence[np.ndarray]) -> tuple[float, float, float]:
@@ -291,6 +277,8 @@ def _layout_check(views: list[ViewPoints], board: Board, dropped: list[DroppedVi
 
 def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tuple[int, int],
               model: str = "plumb_bob", points: str = "corners", max_views: int = 40,
+              k_coefficients: int = 0, fix_principal_point: bool = False,
+              fix_aspect_ratio: bool = False, zero_tangent_dist: bool = False,
               k3: bool = False, cross_validation_folds: int = 5, weighted: bool = True,
               progress: Callable[[str], None] | None = None) -> CalibrationResult:
     """Calibrate a camera from the markers found in several images.
@@ -302,7 +290,14 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         model: ``plumb_bob`` | ``rational_polynomial`` | ``equidistant``.
         points: ``centers`` (one point per marker) or ``corners`` (four per marker).
         max_views: at most this many views are solved (diverse ones are chosen).
-        k3: also estimate k3 for ``plumb_bob`` (for strong distortion).
+        k_coefficients: radial terms solved, k1..kN (the ``calibrate.k_coefficients``
+            parameter): 0 the model's default (k1 k2 for plumb_bob, all for the others);
+            up to 3 for plumb_bob, 6 for rational_polynomial, 4 for equidistant. The terms
+            not solved are zero.
+        fix_principal_point: hold cx, cy at the image centre ((w - 1) / 2, (h - 1) / 2).
+        fix_aspect_ratio: solve one focal length, fx = fy.
+        zero_tangent_dist: hold p1 = p2 = 0 (plumb_bob, rational_polynomial).
+        k3: deprecated, the same as ``k_coefficients=3`` for plumb_bob.
         cross_validation_folds: folds of the hold-out error (0 to skip it).
         weighted: weight each point by the detector's 1/sigma^2 where it gives sigmas
             (``corner_sigma_px``/``center_sigma_px``); views without them weigh alike.
@@ -314,11 +309,17 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
     Raises:
         CalibrationError: the views cannot support a solve (the message says what views
             to add) or the solve did not give a camera that can be right.
+        ParameterError: ``k_coefficients`` is out of range for the model.
     """
     start = time.monotonic()
     say = progress or (lambda _msg: None)
     if model not in MODELS:
         raise CalibrationError(f"camera model {model!r} is not one of {', '.join(MODELS)}")
+    if k3 and model == "plumb_bob" and k_coefficients == 0:
+        k_coefficients = 3
+    options = SolveOptions(int(k_coefficients), bool(fix_principal_point),
+                           bool(fix_aspect_ratio), bool(zero_tangent_dist))
+    options.check(model)
     if points not in POINTS_MODES:
         raise CalibrationError(f"points {points!r} is not one of {', '.join(POINTS_MODES)}")
     w, h = int(image_size[0]), int(image_size[1])
@@ -351,14 +352,15 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
     views = usable
     weighted = weighted and any(
         v.sigma_px is not None and np.isfinite(v.sigma_px).any() for v in views)
-    sol, _ = solve(views, size, model, k3=k3, weighted=weighted)
+    sol, _ = solve(views, size, model, options=options, weighted=weighted)
     if points == "centers":
         # Re-measure the centres through the fitted lens, then solve again (twice: the
         # second pass moves them by far less than their noise).
         for _pass in range(2):
-            views = [lens_corrected_centres(v, sol.camera_matrix, sol.dist_coeffs, model)
+            views = [lens_corrected_centers(v, solution_camera(sol, size))
                      for v in views]
-            sol, _ = solve(views, size, model, k3=k3, initial=sol, weighted=weighted)
+            sol, _ = solve(views, size, model, options=options, initial=sol,
+                           weighted=weighted)
     for _round in range(8):
         res = residuals(views, sol)
         kept, removed = _reject(views, res, board, size, dropped, outliers)
@@ -368,7 +370,7 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         check_views(kept, size, [(d.view_index, d.reason) for d in dropped])
         views = kept
         say(f"re-solving without outliers ({len(views)} views, {points_dropped} points dropped)")
-        sol, _ = solve(views, size, model, k3=k3, initial=sol, weighted=weighted)
+        sol, _ = solve(views, size, model, options=options, initial=sol, weighted=weighted)
     res = residuals(views, sol)
     rms, std, worst = _stats(res)
     _sanity(sol, views, size, rms)
@@ -392,7 +394,7 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         views_used=tuple(v.index for v in views),
         views_dropped=tuple(sorted(dropped, key=lambda d: d.view_index)),
         points_dropped=points_dropped, per_view_rms_px=per_view, rvecs=sol.rvecs,
-        tvecs=sol.tvecs, std_devs={n: float(s) for n, s in zip(sol.free, std_dev, strict=True)},
+        tvecs=sol.tvecs, std_devs=_named_std_devs(sol.free, std_dev), free=sol.free,
         projection_uncertainty_rms_px=unc_rms, projection_uncertainty_max_px=unc_max,
         coverage=coverage, warnings=tuple(warnings),
         points_px=np.concatenate([v.image_points for v in views]),
@@ -400,6 +402,15 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         point_view=np.concatenate([np.full(len(v), v.index) for v in views]),
         outliers_px=(np.concatenate(outliers) if outliers else np.zeros((0, 2))),
         solve_time_s=time.monotonic() - start)
+
+
+def _named_std_devs(free: tuple[str, ...], std_dev: np.ndarray) -> dict[str, float]:
+    """1-sigma by parameter name; a tied focal length (fx = fy) is listed as both."""
+    out: dict[str, float] = {}
+    for name, s in zip(free, std_dev, strict=True):
+        for n in (("fx", "fy") if name == TIED_FOCAL else (name,)):
+            out[n] = float(s)
+    return out
 
 
 def _full_dist(sol: Solution) -> np.ndarray:
@@ -428,7 +439,7 @@ def _sanity(sol: Solution, views: Sequence[ViewPoints], size: tuple[int, int],
         raise CalibrationError(
             f"the solve gave fx/fy = {K[0, 0] / K[1, 1]:.2f}: a bad initialisation; add views "
             "tilted in different directions")
-    cam = Camera(K, sol.dist_coeffs, sol.model, size)
+    cam = solution_camera(sol, size)
     fold = fold_radius_px(cam)
     reach = max(float(np.max(np.linalg.norm(v.image_points - K[:2, 2], axis=1)))
                 for v in views)
@@ -446,11 +457,15 @@ def _warnings(sol: Solution, size: tuple[int, int], views: Sequence[ViewPoints],
     out = []
     for name, s, e in zip(sol.free, std_dev, effects, strict=True):
         if not np.isfinite(e) or e > PARAM_EFFECT_WARN_PX:
-            out.append(f"{name} is poorly determined (1-sigma {s:.3g}, moves the image by up to "
+            shown = "fx = fy" if name == TIED_FOCAL else name
+            out.append(f"{shown} is poorly determined (1-sigma {s:.3g}, moves the image by up to "
                        f"{e:.2f} px); add views tilted more steeply and markers in the image "
                        "corners")
+    # The node's readiness judges by the same grid and threshold (core.coverage): a
+    # collection it calls ready does not get this warning.
     if coverage < MIN_COVERAGE:
-        out.append(f"points cover only {100 * coverage:.0f}% of the image (8x6 grid); "
+        out.append(f"points cover only {100 * coverage:.0f}% of the image "
+                   f"({COVERAGE_GRID[0]}x{COVERAGE_GRID[1]} grid); "
                    "distortion outside them is extrapolated: add views with markers near the "
                    "edges and corners")
     if np.isfinite(holdout) and holdout > 1.5 * rms + 0.05:
@@ -462,7 +477,7 @@ def _warnings(sol: Solution, size: tuple[int, int], views: Sequence[ViewPoints],
     w, h = size
     K = sol.camera_matrix
     corner = max(float(np.hypot(x - K[0, 2], y - K[1, 2])) for x in (0, w) for y in (0, h))
-    fold = fold_radius_px(Camera(K, sol.dist_coeffs, sol.model, size))
+    fold = fold_radius_px(solution_camera(sol, size))
     if fold < corner:
         out.append(f"the fitted distortion folds back {fold:.0f} px from the principal point, "
                    "inside the image: do not trust the image corners; add views covering them")

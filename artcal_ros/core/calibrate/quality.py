@@ -14,15 +14,11 @@
 from __future__ import annotations
 
 from collections.abc import Sequence
-from dataclasses import dataclass
-from typing import Any
 
-import cv2
 import numpy as np
 
+from artcal_ros.core.calibrate.model import free_columns, free_jacobian
 from artcal_ros.core.calibrate.solve import (
-    DIST_NAMES,
-    INTRINSIC_NAMES,
     Solution,
     ViewPoints,
     bundle_adjust,
@@ -31,56 +27,15 @@ from artcal_ros.core.calibrate.solve import (
     project,
     project_jacobian,
 )
-
-_UNDISTORT_CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 500, 1e-15)
-
-
-@dataclass(frozen=True)
-class Camera:
-    """Intrinsics of a camera: K (3, 3), dist (n,), model name, size (width, height)."""
-
-    K: np.ndarray
-    dist: np.ndarray
-    model: str
-    size: tuple[int, int]
+from artcal_ros.core.camera import CameraModel, HasCamera, camera_of, lens_spec
 
 
-def as_camera(obj: Any) -> Camera:
-    """A :class:`Camera` from anything with (K | camera_matrix), (dist | dist_coeffs), model,
-    (size | image_size): a synth camera, a CalibrationResult, a Solution with a size."""
-    K = getattr(obj, "K", None)
-    K = getattr(obj, "camera_matrix", None) if K is None else K
-    dist = getattr(obj, "dist", None)
-    dist = getattr(obj, "dist_coeffs", None) if dist is None else dist
-    size = getattr(obj, "size", None)
-    size = getattr(obj, "image_size", None) if size is None else size
-    if K is None or dist is None or size is None:
-        raise TypeError(f"{type(obj).__name__} does not describe a camera")
-    return Camera(np.asarray(K, np.float64), np.asarray(dist, np.float64).ravel(),
-                  str(obj.model), (int(size[0]), int(size[1])))
-
-
-def unproject(cam: Camera, pixels: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Rays of image points: ((N, 3) rays with z = 1, (N,) bool where the inverse is exact).
-
-    The inverse counts as exact where re-projecting the ray lands within 1e-4 px.
-    """
-    pts = np.ascontiguousarray(pixels, dtype=np.float64).reshape(-1, 1, 2)
-    if cam.model == "equidistant":
-        und = cv2.fisheye.undistortPoints(pts, cam.K, cam.dist.reshape(4, 1),
-                                          criteria=_UNDISTORT_CRITERIA)
-    else:
-        und = cv2.undistortPointsIter(pts, cam.K, cam.dist, np.eye(3), np.eye(3),
-                                      _UNDISTORT_CRITERIA)
-    rays = np.hstack([und.reshape(-1, 2), np.ones((len(pts), 1))])
-    back = project_rays(cam, rays)
-    ok = np.linalg.norm(back - pts.reshape(-1, 2), axis=1) < 1e-4
-    return rays, ok
-
-
-def project_rays(cam: Camera, rays: np.ndarray) -> np.ndarray:
-    """(N, 2) pixels where ``cam`` images camera-frame rays (N, 3)."""
-    return project(rays, np.zeros(3), np.zeros(3), cam.K, cam.dist, cam.model)
+def solution_camera(sol: Solution, image_size: tuple[int, int]) -> CameraModel:
+    """The camera of a solve, every coefficient of its model present (fixed ones as zeros)."""
+    dist = np.zeros(lens_spec(sol.model).n_dist)
+    d = np.asarray(sol.dist_coeffs, dtype=np.float64).ravel()[:len(dist)]
+    dist[:len(d)] = d
+    return CameraModel(sol.model, sol.camera_matrix, dist, image_size)
 
 
 def image_grid(size: tuple[int, int], step_px: float) -> np.ndarray:
@@ -92,7 +47,7 @@ def image_grid(size: tuple[int, int], step_px: float) -> np.ndarray:
     return np.stack([gx.ravel(), gy.ravel()], axis=1)
 
 
-def projection_difference(true_cam: Any, est_cam: Any, *,
+def projection_difference(true_cam: CameraModel | HasCamera, est_cam: CameraModel | HasCamera, *,
                           step_px: float = 10.0) -> tuple[float, float]:
     """Accuracy of an estimated camera against the true one, pixels: (RMS, max).
 
@@ -101,11 +56,11 @@ def projection_difference(true_cam: Any, est_cam: Any, *,
     estimated one; the figure is the distance between the two image points. Grid points
     where the true model cannot be inverted exactly are skipped.
     """
-    true = as_camera(true_cam)
-    est = as_camera(est_cam)
+    true = camera_of(true_cam)
+    est = camera_of(est_cam)
     pix = image_grid(true.size, step_px)
-    rays, ok = unproject(true, pix)
-    d = np.linalg.norm(project_rays(est, rays[ok]) - pix[ok], axis=1)
+    rays, ok = true.unproject(pix)
+    d = np.linalg.norm(est.project_cv(rays[ok]) - pix[ok], axis=1)
     d = d[np.isfinite(d)]
     if len(d) == 0:
         return float("nan"), float("nan")
@@ -127,9 +82,8 @@ def intrinsic_covariance(views: Sequence[ViewPoints], sol: Solution,
     Returns:
         (covariance (p, p), residual sigma per coordinate of unit weight).
     """
-    all_names = INTRINSIC_NAMES + DIST_NAMES[sol.model]
-    cols = [all_names.index(n) for n in sol.free]
-    p = len(cols)
+    groups = free_columns(sol.model, sol.free)
+    p = len(groups)
     U = np.zeros((p, p))
     S = np.zeros((p, p))
     n_obs = 0
@@ -138,7 +92,7 @@ def intrinsic_covariance(views: Sequence[ViewPoints], sol: Solution,
         sw = np.repeat(np.sqrt(point_weights(v) if weighted else np.ones(len(v))), 2)
         A, B = project_jacobian(v.object_points, r, t, sol.camera_matrix, sol.dist_coeffs,
                                 sol.model)
-        A = A[:, cols] * sw[:, None]
+        A = free_jacobian(A, groups) * sw[:, None]
         B = B * sw[:, None]
         sse += float(np.sum((np.asarray(e).ravel() * sw) ** 2))
         U += A.T @ A
@@ -165,20 +119,19 @@ def parameter_effect_px(sol: Solution, image_size: tuple[int, int],
          image (p,); RMS and max over the image of the 1-sigma projection uncertainty of
          all parameters together).
     """
-    cam = Camera(sol.camera_matrix, sol.dist_coeffs, sol.model, image_size)
+    cam = solution_camera(sol, image_size)
     pix = image_grid(image_size, max(image_size) / 24.0)
-    rays, ok = unproject(cam, pix)
+    rays, ok = cam.unproject(pix)
     rays = rays[ok]
     if len(rays) == 0:
         return np.full(len(sol.free), np.inf), float("inf"), float("inf")
-    all_names = INTRINSIC_NAMES + DIST_NAMES[sol.model]
-    cols = [all_names.index(n) for n in sol.free]
+    groups = free_columns(sol.model, sol.free)
     A, _ = project_jacobian(rays, np.zeros(3), np.zeros(3), sol.camera_matrix,
                             sol.dist_coeffs, sol.model)
-    A = A[:, cols]
+    A = free_jacobian(A, groups)
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
     per_param = np.array([
-        float(np.max(np.hypot(A[0::2, k], A[1::2, k]))) * std[k] for k in range(len(cols))])
+        float(np.max(np.hypot(A[0::2, k], A[1::2, k]))) * std[k] for k in range(len(groups))])
     var = np.einsum("ij,jk,ik->i", A, cov, A)
     var_pt = np.maximum(var[0::2] + var[1::2], 0.0)
     return per_param, float(np.sqrt(np.mean(var_pt))), float(np.sqrt(var_pt.max()))
@@ -219,7 +172,7 @@ def cross_validate(views: Sequence[ViewPoints], sol: Solution, *, folds: int = 5
     return float(np.sqrt(np.mean(np.concatenate(sq))))
 
 
-def fold_radius_px(cam: Camera, *, max_angle_deg: float = 89.0) -> float:
+def fold_radius_px(cam: CameraModel, *, max_angle_deg: float = 89.0) -> float:
     """Smallest distance from the principal point at which the model folds back, pixels.
 
     Rays are traced outwards along 16 directions; a distortion model is only usable where
@@ -231,7 +184,7 @@ def fold_radius_px(cam: Camera, *, max_angle_deg: float = 89.0) -> float:
     fold = np.inf
     for phi in np.linspace(0.0, 2 * np.pi, 16, endpoint=False):
         rays = np.stack([r * np.cos(phi), r * np.sin(phi), np.ones_like(r)], axis=1)
-        px = project_rays(cam, rays)
+        px = cam.project_cv(rays)
         dist = np.linalg.norm(px - cam.K[:2, 2], axis=1)
         back = np.nonzero(np.diff(dist) <= 0)[0]
         if len(back):

@@ -1,27 +1,64 @@
-"""Run a calibration off the executor, write the YAML, and phrase the answer (ROS-free glue)."""
+"""The session path the node and the CLI share: views -> select -> solve -> write -> summary.
+
+ROS-free. The CLI collects views with :func:`detect_views` from image files or a bag, the
+node with its :class:`~artcal_ros.core.coverage.ViewCollector` from a live stream; both
+then call :func:`solve_session` (the solve options come from the flat parameters through
+:func:`calibrate_kwargs`, so node and CLI read the same ``calibrate.*`` names) and phrase
+the result with :func:`session_summary`. The node runs it off the executor thread with
+:func:`run_solve`.
+
+::
+
+    session = solve_session(dets, board, size, params)   # calibrates, writes the YAML
+    print(session_summary(session, long=True))
+"""
 
 from __future__ import annotations
 
 import threading
-from collections.abc import Mapping, Sequence
+import time
+from collections.abc import Callable, Iterable, Mapping, Sequence
 from dataclasses import dataclass
-from typing import Any
+from pathlib import Path
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.coverage import Readiness
 from artcal_ros.core.detections import Detections
-from artcal_ros.core.errors import ArtcalError
+from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
 from artcal_ros.core.params import output_path
 
+if TYPE_CHECKING:
+    from artcal_ros.core.calibrate.pipeline import CalibrationResult
+
+
+class _ThreadRegistry:
+    """The solve threads started, safe to add to and read from any thread."""
+
+    def __init__(self) -> None:
+        self._lock = threading.Lock()
+        self._threads: list[threading.Thread] = []
+
+    def append(self, thread: threading.Thread) -> None:
+        """Remember ``thread`` (finished ones are forgotten)."""
+        with self._lock:
+            self._threads = [t for t in self._threads if t.is_alive()] + [thread]
+
+    def alive(self) -> list[threading.Thread]:
+        """The threads still running."""
+        with self._lock:
+            return [t for t in self._threads if t.is_alive()]
+
+
 # Solve threads started (the node waits for live ones at shutdown, see busy_threads).
-SOLVE_THREADS: list[threading.Thread] = []
+SOLVE_THREADS = _ThreadRegistry()
 
 
 def busy_threads() -> list[threading.Thread]:
     """Solve threads still running."""
-    return [t for t in SOLVE_THREADS if t.is_alive()]
+    return SOLVE_THREADS.alive()
 
 
 @dataclass(frozen=True)
@@ -33,41 +70,127 @@ class SolveOutcome:
     result: Any = None
 
 
-def summary_line(result: Any) -> str:
-    """RMS, fx, fy, cx, cy and views used, on one line."""
-    K = np.asarray(result.camera_matrix)
-    used = result.views_used
-    n_used = used if isinstance(used, int) else len(used)
-    return (f"RMS {float(result.reprojection_rms_px):.3f} px, fx {K[0, 0]:.2f} fy {K[1, 1]:.2f} "
-            f"cx {K[0, 2]:.2f} cy {K[1, 2]:.2f}, {n_used} views used ({result.model})")
+@dataclass(frozen=True)
+class Session:
+    """A finished calibration session.
+
+    Attributes:
+        result: the calibration.
+        path: the camera_calibration_parsers YAML written.
+        seconds: wall time of the solve and the write, seconds.
+    """
+
+    result: CalibrationResult
+    path: Path
+    seconds: float
+
+
+def calibrate_kwargs(params: Mapping[str, Any]) -> dict[str, Any]:
+    """The keyword arguments of :func:`~artcal_ros.core.calibrate.calibrate` from the flat
+    parameters (``camera_model``, ``points``, ``max_views`` and the ``calibrate.*`` options).
+
+    Args:
+        params: validated parameters (:func:`artcal_ros.core.params.load_params`).
+    """
+    return {"model": str(params["camera_model"]), "points": str(params["points"]),
+            "max_views": int(params["max_views"]),
+            "k_coefficients": int(params["calibrate.k_coefficients"]),
+            "fix_principal_point": bool(params["calibrate.fix_principal_point"]),
+            "fix_aspect_ratio": bool(params["calibrate.fix_aspect_ratio"]),
+            "zero_tangent_dist": bool(params["calibrate.zero_tangent_dist"])}
+
+
+def detect_views(frames: Iterable[tuple[str, np.ndarray]],
+                 board: Board) -> tuple[list[Detections], tuple[int, int]]:
+    """Collect views: detect the markers in every frame of one camera.
+
+    Args:
+        frames: (source name, image) pairs; images (H, W) uint8/uint16 or (H, W, 3) BGR.
+        board: the board.
+
+    Returns:
+        (one Detections per frame, (width, height) pixels).
+
+    Raises:
+        ImageFormatError: the frames differ in size.
+        ParameterError: there are no frames.
+    """
+    from artcal_ros.core.detect import Detector
+
+    detector = Detector(board)
+    dets: list[Detections] = []
+    size: tuple[int, int] | None = None
+    for source, image in frames:
+        h, w = image.shape[:2]
+        if size is None:
+            size = (w, h)
+        elif size != (w, h):
+            raise ImageFormatError(f"{source} is {w}x{h} but the first image is "
+                                   f"{size[0]}x{size[1]}; calibrate one camera at a time")
+        dets.append(detector.detect(image, source=source))
+    if size is None:
+        raise ParameterError("no images: give image files or --bag BAG")
+    return dets, size
+
+
+def solve_session(views: Sequence[Detections], board: Board, image_size: tuple[int, int],
+                  params: Mapping[str, Any], *, output: str | Path | None = None,
+                  max_views: int | None = None,
+                  progress: Callable[[str], None] | None = None) -> Session:
+    """Select views, solve with the parameters' options and write the calibration YAML.
+
+    Args:
+        views: the collected views (all of one image size).
+        board: the board.
+        image_size: (width, height), pixels.
+        params: validated parameters (camera_model, points, calibrate.*, max_views,
+            camera_name, output_file).
+        output: the YAML to write (default: :func:`~artcal_ros.core.params.output_path`).
+        max_views: solve from at most this many views (default: ``max_views``).
+        progress: called with a short message at each stage; may raise to stop.
+
+    Raises:
+        CalibrationError: the views cannot support a solve; nothing is written (an
+            existing file is left as it was).
+        ArtcalError: the file cannot be written.
+    """
+    from artcal_ros.core.calibrate.pipeline import calibrate
+    from artcal_ros.core.camera_info import write_camera_info_yaml
+
+    start = time.monotonic()
+    kwargs = calibrate_kwargs(params)
+    if max_views is not None:
+        kwargs["max_views"] = int(max_views)
+    result = calibrate(list(views), board, image_size=image_size, progress=progress, **kwargs)
+    path = Path(output).expanduser() if output is not None else output_path(params)
+    write_camera_info_yaml(path, result, camera_name=str(params["camera_name"]))
+    return Session(result, path, time.monotonic() - start)
+
+
+def session_summary(session: Session, *, long: bool = False,
+                    readiness: Readiness | None = None) -> str:
+    """The one summary of a session: the result's own (short or long, see
+    :meth:`CalibrationResult.summary`), the file written and, for the node, what the
+    collection still lacks."""
+    text = session.result.summary(long=long)
+    if long:
+        text += f"\nwrote {session.path} ({session.seconds:.1f} s)"
+    else:
+        text += f"; wrote {session.path}"
+    if readiness is not None and not readiness.ready:
+        text += ("\n" if long else "; ") + f"note, still missing: {'; '.join(readiness.missing)}"
+    return text
 
 
 class CancelledError(Exception):
     """Raised from the solve's progress callback to end it early (node shutting down)."""
 
 
-def _solve(views: Sequence[Detections], board: Board, image_size: tuple[int, int],
-           params: Mapping[str, Any], stopping: threading.Event) -> Any:
-    from artcal_ros.core.calibrate.pipeline import calibrate
-    from artcal_ros.core.camera_info import write_camera_info_yaml
-
-    def progress(_stage: str) -> None:
-        if stopping.is_set():
-            raise CancelledError
-
-    result = calibrate(list(views), board, image_size=image_size,
-                       model=str(params["camera_model"]), points=str(params["points"]),
-                       max_views=int(params["max_views"]), progress=progress)
-    path = output_path(params)
-    path.parent.mkdir(parents=True, exist_ok=True)
-    write_camera_info_yaml(path, result, camera_name=str(params["camera_name"]))
-    return result
-
-
 def run_solve(views: Sequence[Detections], board: Board, image_size: tuple[int, int],
               params: Mapping[str, Any], readiness: Readiness, *,
               stopping: threading.Event) -> SolveOutcome:
-    """Calibrate from ``views`` on a daemon thread, waiting for it unless ``stopping`` is set.
+    """The node's session: :func:`solve_session` on a daemon thread, waiting for it unless
+    ``stopping`` is set.
 
     On shutdown (``stopping`` set) the wait ends at once and the solve stops at its next
     stage; the node waits briefly for it (see :func:`busy_threads`).
@@ -76,16 +199,24 @@ def run_solve(views: Sequence[Detections], board: Board, image_size: tuple[int, 
         views: the kept views (all of one image size).
         board: the board.
         image_size: (width, height), pixels.
-        params: validated parameters (camera_model, points, max_views, output_file, ...).
+        params: validated parameters (camera_model, points, calibrate.*, max_views,
+            output_file, ...).
         readiness: the collection's state, mentioned in the answer when not ideal.
         stopping: set on shutdown; the wait then ends with success=false.
+
+    Returns:
+        success and the one-line summary, or success=false and the reason.
     """
     box: dict[str, Any] = {}
     done = threading.Event()
 
+    def progress(_stage: str) -> None:
+        if stopping.is_set():
+            raise CancelledError
+
     def work() -> None:
         try:
-            box["value"] = _solve(views, board, image_size, params, stopping)
+            box["value"] = solve_session(views, board, image_size, params, progress=progress)
         except CancelledError:
             box["error"] = "cancelled"
         except ArtcalError as e:
@@ -105,11 +236,5 @@ def run_solve(views: Sequence[Detections], board: Board, image_size: tuple[int, 
             return SolveOutcome(False, "shutting down; calibration abandoned")
     if "error" in box:
         return SolveOutcome(False, f"calibration failed: {box['error']}")
-    result = box["value"]
-    message = f"{summary_line(result)}; wrote {output_path(params)}"
-    warnings = list(getattr(result, "warnings", ()) or ())
-    if warnings:
-        message += f"; warnings: {'; '.join(str(w) for w in warnings)}"
-    if not readiness.ready:
-        message += f"; note, still missing: {'; '.join(readiness.missing)}"
-    return SolveOutcome(True, message, result)
+    session: Session = box["value"]
+    return SolveOutcome(True, session_summary(session, readiness=readiness), session.result)

@@ -7,6 +7,7 @@ points (outliers, views) is the caller's job. The model primitives live in
 
 from __future__ import annotations
 
+from dataclasses import replace
 from typing import Any
 
 import cv2
@@ -18,35 +19,72 @@ from artcal_ros.core.calibrate.model import (
     INTRINSIC_NAMES,
     MODELS,
     Solution,
+    SolveOptions,
     ViewPoints,
+    constrain,
     estimate_pose,
     free_parameters,
     project,
     project_jacobian,
+    radial_names,
 )
 from artcal_ros.core.errors import CalibrationError
 
-__all__ = ["DIST_NAMES", "INTRINSIC_NAMES", "MODELS", "Solution", "ViewPoints",
+__all__ = ["DIST_NAMES", "INTRINSIC_NAMES", "MODELS", "Solution", "SolveOptions", "ViewPoints",
            "bundle_adjust", "estimate_pose", "free_parameters", "point_weights", "project",
            "project_jacobian", "residuals", "solve"]
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-10)
+_DEFAULT = SolveOptions()
+_FIX_K = (cv2.CALIB_FIX_K1, cv2.CALIB_FIX_K2, cv2.CALIB_FIX_K3, cv2.CALIB_FIX_K4,
+          cv2.CALIB_FIX_K5, cv2.CALIB_FIX_K6)
+_FISHEYE_FIX_K = (cv2.fisheye.CALIB_FIX_K1, cv2.fisheye.CALIB_FIX_K2, cv2.fisheye.CALIB_FIX_K3,
+                  cv2.fisheye.CALIB_FIX_K4)
 
 
-def _initial_fisheye(views: list[ViewPoints],
-                     image_size: tuple[int, int]) -> tuple[np.ndarray, np.ndarray]:
+def opencv_flags(model: str, options: SolveOptions) -> int:
+    """``cv2.calibrateCamera`` flags (pinhole models) or ``cv2.fisheye.calibrate`` flags
+    (equidistant) that hold what ``options`` holds."""
+    n_radial = options.radial_terms(model)
+    if model == "equidistant":
+        F = cv2.fisheye
+        flags = F.CALIB_RECOMPUTE_EXTRINSIC | F.CALIB_FIX_SKEW
+        for fix in _FISHEYE_FIX_K[n_radial:]:
+            flags |= fix
+        if options.fix_principal_point:
+            flags |= F.CALIB_FIX_PRINCIPAL_POINT
+        return flags  # (no fisheye aspect-ratio flag: the bundle adjustment ties fx = fy)
+    flags = cv2.CALIB_FIX_S1_S2_S3_S4 | cv2.CALIB_FIX_TAUX_TAUY
+    if model == "rational_polynomial":
+        flags |= cv2.CALIB_RATIONAL_MODEL
+    for fix in _FIX_K[n_radial:len(radial_names(model))]:
+        flags |= fix
+    if options.fix_principal_point:
+        flags |= cv2.CALIB_FIX_PRINCIPAL_POINT
+    if options.fix_aspect_ratio:
+        flags |= cv2.CALIB_FIX_ASPECT_RATIO
+    if options.zero_tangent_dist:
+        flags |= cv2.CALIB_ZERO_TANGENT_DIST
+    return flags
+
+
+def _initial_fisheye(views: list[ViewPoints], image_size: tuple[int, int],
+                     options: SolveOptions = _DEFAULT) -> tuple[np.ndarray, np.ndarray]:
     """Starting intrinsics for the equidistant solve: (K (3, 3), dist (4,)).
 
     OpenCV's fisheye calibration (its own initialisation) usually gets close; where it
     throws, a pinhole model fitted to the points near the image centre, where the two
-    models agree, gives the focal length and principal point.
+    models agree, gives the focal length and principal point. The caller moves the result
+    onto the constraints of ``options`` (:func:`constrain`).
     """
     F = cv2.fisheye
+    w, h = image_size
+    center = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
     try:
         _, K, D, _, _ = F.calibrate(
             [v.object_points.reshape(-1, 1, 3) for v in views],
             [v.image_points.reshape(-1, 1, 2) for v in views], image_size, np.eye(3),
-            np.zeros((4, 1)), flags=F.CALIB_RECOMPUTE_EXTRINSIC | F.CALIB_FIX_SKEW,
+            np.zeros((4, 1)), flags=opencv_flags("equidistant", options),
             criteria=(cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 50, 1e-10))
         K = np.asarray(K, np.float64)
         D = np.asarray(D, np.float64).ravel()
@@ -54,12 +92,10 @@ def _initial_fisheye(views: list[ViewPoints],
             return K, D
     except cv2.error:
         pass
-    w, h = image_size
-    centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
     radius = 0.35 * float(np.hypot(w, h))
     obj, img = [], []
     for v in views:
-        near = np.linalg.norm(v.image_points - centre, axis=1) < radius
+        near = np.linalg.norm(v.image_points - center, axis=1) < radius
         if near.sum() >= 6:
             obj.append(v.object_points[near].astype(np.float32))
             img.append(v.image_points[near].astype(np.float32))
@@ -67,13 +103,15 @@ def _initial_fisheye(views: list[ViewPoints],
         obj = [v.object_points.astype(np.float32) for v in views]
         img = [v.image_points.astype(np.float32) for v in views]
     flags = (cv2.CALIB_FIX_K3 | cv2.CALIB_ZERO_TANGENT_DIST | cv2.CALIB_FIX_ASPECT_RATIO)
-    K0 = np.array([[1.0, 0, centre[0]], [0, 1.0, centre[1]], [0, 0, 1]])
+    if options.fix_principal_point:
+        flags |= cv2.CALIB_FIX_PRINCIPAL_POINT
+    K0 = np.array([[1.0, 0, center[0]], [0, 1.0, center[1]], [0, 0, 1]])
     _, K, _, _, _ = cv2.calibrateCamera(obj, img, (w, h), K0, np.zeros(5), flags=flags)
     return np.asarray(K, dtype=np.float64), np.zeros(4)
 
 
-def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *, k3: bool = False,
-          initial: Solution | None = None,
+def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *,
+          options: SolveOptions = _DEFAULT, initial: Solution | None = None,
           weighted: bool = False) -> tuple[Solution, np.ndarray | None]:
     """Fit intrinsics and poses to every point of ``views`` (no outlier handling).
 
@@ -86,7 +124,7 @@ def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *, k
         views: at least 3 views with at least 4 non-collinear points each.
         image_size: (width, height), pixels.
         model: one of :data:`MODELS`.
-        k3: also estimate k3 (``plumb_bob`` only).
+        options: what the solve holds fixed (every stage holds it).
         initial: start from these intrinsics.
         weighted: weight each point by 1 / sigma^2 (``ViewPoints.sigma_px``).
 
@@ -98,28 +136,36 @@ def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *, k
     """
     if initial is None:
         w, h = image_size
-        centre = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
+        center = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
         half_diag = 0.5 * float(np.hypot(w, h))
         for stage, frac in enumerate((0.5, 0.75)):
             sub = []
             for v in views:
-                near = np.linalg.norm(v.image_points - centre, axis=1) < frac * half_diag
+                near = np.linalg.norm(v.image_points - center, axis=1) < frac * half_diag
                 if near.sum() >= 8:
                     sub.append(v.subset(near))
             if len(sub) < 3 or sum(len(v) for v in sub) == sum(len(v) for v in views):
                 continue
-            stage_model, stage_k3 = ("plumb_bob", False) if (
-                stage == 0 and model != "equidistant") else (model, k3)
+            stage_model, stage_options = (("plumb_bob", _first_stage(model, options))
+                                          if stage == 0 and model != "equidistant"
+                                          else (model, options))
             try:
-                initial, _ = _solve_once(sub, image_size, stage_model, k3=stage_k3,
+                initial, _ = _solve_once(sub, image_size, stage_model, options=stage_options,
                                          initial=initial)
             except CalibrationError:
                 initial = None
-    return _solve_once(views, image_size, model, k3=k3, initial=initial, weighted=weighted)
+    return _solve_once(views, image_size, model, options=options, initial=initial,
+                       weighted=weighted)
+
+
+def _first_stage(model: str, options: SolveOptions) -> SolveOptions:
+    """The options of a plumb_bob k1 k2 p1 p2 fit that starts a ``model`` solve: the same
+    constraints, at most k1 k2."""
+    return replace(options, k_coefficients=min(2, options.radial_terms(model)))
 
 
 def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str, *,
-                k3: bool = False, initial: Solution | None = None,
+                options: SolveOptions = _DEFAULT, initial: Solution | None = None,
                 weighted: bool = False) -> tuple[Solution, np.ndarray | None]:
     """One fit of intrinsics and poses to every point of ``views``.
 
@@ -127,8 +173,9 @@ def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str
         views: at least 2 views with at least 4 non-collinear points each.
         image_size: (width, height), pixels.
         model: one of :data:`MODELS`.
-        k3: also estimate k3 (``plumb_bob`` only).
-        initial: start from these intrinsics instead of OpenCV's initialisation.
+        options: what the solve holds fixed.
+        initial: start from these intrinsics instead of OpenCV's initialisation (moved
+            onto the constraints of ``options`` first).
 
     Returns:
         (solution, OpenCV's standard deviations of the intrinsics or None).
@@ -140,37 +187,40 @@ def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str
         raise CalibrationError(f"unknown camera model {model!r}; use one of {', '.join(MODELS)}")
     obj = [v.object_points.astype(np.float64) for v in views]
     img = [v.image_points.astype(np.float64) for v in views]
-    free = free_parameters(model, k3)
+    free = free_parameters(model, options=options)
     rv: Any
     tv: Any
     try:
         if model == "equidistant":
             if initial is not None:
-                K0, D0 = initial.camera_matrix.copy(), initial.dist_coeffs.copy()
+                K0, D0 = initial.camera_matrix, initial.dist_coeffs
             else:
-                K0, D0 = _initial_fisheye(views, image_size)
+                K0, D0 = _initial_fisheye(views, image_size, options)
+            # The bundle adjustment keeps held parameters where they start.
+            K0, D0 = constrain(K0, D0, model, image_size, options)
             K, D, rv, tv = bundle_adjust(views, K0, D0, model, free=free,
                                           weighted=weighted)
             std = None
             dist: np.ndarray = np.asarray(D, dtype=np.float64).ravel()
         else:
-            flags = cv2.CALIB_FIX_S1_S2_S3_S4 | cv2.CALIB_FIX_TAUX_TAUY
-            n = 5
-            if model == "rational_polynomial":
-                flags |= cv2.CALIB_RATIONAL_MODEL
-                n = 8
-            elif not k3:
-                flags |= cv2.CALIB_FIX_K3
-            if initial is None and (model == "rational_polynomial" or k3):
+            flags = opencv_flags(model, options)
+            n = len(DIST_NAMES[model])
+            if initial is None and (model == "rational_polynomial"
+                                    or options.radial_terms(model) > 2):
                 # Higher-order terms free from the start often send OpenCV's solve into a
                 # wrong minimum; start them from the k1 k2 p1 p2 fit instead.
-                initial, _ = _solve_once(views, image_size, "plumb_bob", k3=False)
+                initial, _ = _solve_once(views, image_size, "plumb_bob",
+                                         options=_first_stage(model, options))
             if initial is not None:
+                # With a guess OpenCV holds fixed terms at their given values: give it the
+                # held ones (principal point, fx = fy, zeros).
                 flags |= cv2.CALIB_USE_INTRINSIC_GUESS
-                K0 = initial.camera_matrix.copy()
+                K0, d0 = constrain(initial.camera_matrix, initial.dist_coeffs, model,
+                                   image_size, options)
                 D0 = np.zeros(14)
-                D0[: len(initial.dist_coeffs)] = initial.dist_coeffs
+                D0[: len(d0)] = d0
             else:
+                # Without one it starts from fx / fy = 1 and cx, cy at ((w-1)/2, (h-1)/2).
                 K0, D0 = np.eye(3), np.zeros(14)
             _, K, D, rv, tv, std_i, _, _ = cv2.calibrateCameraExtended(
                 [o.astype(np.float32) for o in obj], [i.astype(np.float32) for i in img],

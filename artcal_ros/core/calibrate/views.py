@@ -12,20 +12,22 @@ from __future__ import annotations
 from collections.abc import Sequence
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.calibrate.quality import Camera, project_rays, unproject
 from artcal_ros.core.calibrate.solve import ViewPoints
+from artcal_ros.core.camera import CameraModel
+
+# The view geometry (guessed camera, pose, coverage grid and threshold) is defined once, in
+# core.coverage, for the node's readiness and for the selection and checks here alike.
+from artcal_ros.core.coverage import COVERAGE_GRID, POINTS_MODES
+from artcal_ros.core.coverage import view_geometry as one_view_geometry
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import CalibrationError
 
-POINTS_MODES = ("centers", "corners")
 MIN_MARKERS_PER_VIEW = 6  # enough for a homography plus redundancy to see distortion
 MIN_VIEWS = 3  # focal lengths and principal point need three differently tilted views
 MIN_TILT_SPREAD_DEG = 5.0  # below this, every view shows the board at the same angle
-COVERAGE_GRID = (8, 6)  # cells across and down the image for coverage
 
 
 def view_points(det: Detections, board: Board, points: str, index: int) -> ViewPoints:
@@ -58,8 +60,7 @@ def view_points(det: Detections, board: Board, points: str, index: int) -> ViewP
                       sigma_px=det.corner_sigma_px[keep][ok].reshape(-1))
 
 
-def lens_corrected_centres(view: ViewPoints, camera_matrix: np.ndarray,
-                           dist_coeffs: np.ndarray, model: str) -> ViewPoints:
+def lens_corrected_centers(view: ViewPoints, cam: CameraModel) -> ViewPoints:
     """The view with each marker centre re-measured through the lens model.
 
     The image of a square's centre is the intersection of its image diagonals only
@@ -69,9 +70,8 @@ def lens_corrected_centres(view: ViewPoints, camera_matrix: np.ndarray,
     """
     if view.marker_corners_px is None or len(view) == 0:
         return view
-    cam = Camera(camera_matrix, dist_coeffs, model, (1, 1))
     m = len(view)
-    rays, ok = unproject(cam, view.marker_corners_px.reshape(-1, 2))
+    rays, ok = cam.unproject(view.marker_corners_px.reshape(-1, 2))
     h = rays.reshape(m, 4, 3)
     c = np.cross(np.cross(h[:, 0], h[:, 2]), np.cross(h[:, 1], h[:, 3]))
     with np.errstate(all="ignore"):
@@ -79,7 +79,7 @@ def lens_corrected_centres(view: ViewPoints, camera_matrix: np.ndarray,
     good = ok.reshape(m, 4).all(axis=1) & np.all(np.isfinite(c), axis=1)
     new = view.image_points.copy()
     if good.any():
-        new[good] = project_rays(cam, c[good])
+        new[good] = cam.project_cv(c[good])
     return view.with_image_points(new)
 
 
@@ -131,53 +131,43 @@ def view_problem(view: ViewPoints, board: Board) -> str | None:
     return None
 
 
-def guess_camera_matrix(image_size: tuple[int, int]) -> np.ndarray:
-    """A rough pinhole camera (about 65 degrees across) for view geometry before a solve."""
-    w, h = image_size
-    f = 0.8 * max(w, h)
-    return np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
-
-
 @dataclass(frozen=True)
-class ViewGeometry:
-    """Rough geometry of each view, from a guessed camera (for selection and degeneracy).
+class ViewsGeometry:
+    """The geometry of several views (:func:`artcal_ros.core.coverage.view_geometry` of
+    each), stacked for selection and the degeneracy checks.
 
     Attributes:
-        normals: (V, 3) unit board normals in the camera frame.
-        centres_px: (V, 2) the mean image position of each view's points, pixels.
+        normals: (V, 3) unit board normals in the camera frame, facing the camera.
+        centers_px: (V, 2) the mean image position of each view's points, pixels.
         log_distance: (V,) log of the camera-to-board distance, metres.
         cells: (V, C) bool, the coverage-grid cells each view's points fall in.
     """
 
     normals: np.ndarray
-    centres_px: np.ndarray
+    centers_px: np.ndarray
     log_distance: np.ndarray
     cells: np.ndarray
 
 
 def view_geometry(views: Sequence[ViewPoints], image_size: tuple[int, int],
-                  camera_matrix: np.ndarray | None = None) -> ViewGeometry:
-    """Rough pose and coverage of each view; see :class:`ViewGeometry`."""
-    K = guess_camera_matrix(image_size) if camera_matrix is None else camera_matrix
-    w, h = image_size
+                  camera_matrix: np.ndarray | None = None) -> ViewsGeometry:
+    """Rough pose and coverage of each view (the one definition in core.coverage), stacked.
+
+    Args:
+        views: the views.
+        image_size: (width, height), pixels.
+        camera_matrix: (3, 3) a better camera than the guessed one, if known.
+    """
     gx, gy = COVERAGE_GRID
-    normals = np.zeros((len(views), 3))
-    centres = np.zeros((len(views), 2))
-    logd = np.zeros(len(views))
-    cells = np.zeros((len(views), gx * gy), dtype=bool)
-    for k, v in enumerate(views):
-        ok, rvec, tvec = cv2.solvePnP(v.object_points, v.image_points, K, np.zeros(5),
-                                      flags=cv2.SOLVEPNP_IPPE)
-        if ok:
-            R, _ = cv2.Rodrigues(rvec)
-            n = R[:, 2]
-            normals[k] = n if n[2] < 0 else -n  # facing the camera
-            logd[k] = np.log(max(float(np.linalg.norm(tvec)), 1e-6))
-        centres[k] = v.image_points.mean(axis=0)
-        cx = np.clip((v.image_points[:, 0] / w * gx).astype(int), 0, gx - 1)
-        cy = np.clip((v.image_points[:, 1] / h * gy).astype(int), 0, gy - 1)
-        cells[k, cy * gx + cx] = True
-    return ViewGeometry(normals, centres, logd, cells)
+    each = [one_view_geometry(v.object_points, v.image_points, image_size, camera_matrix)
+            for v in views]
+    if not each:
+        return ViewsGeometry(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0),
+                             np.zeros((0, gx * gy), dtype=bool))
+    return ViewsGeometry(np.stack([g.normal for g in each]),
+                         np.stack([g.center_px for g in each]),
+                         np.array([g.log_distance for g in each]),
+                         np.stack([g.cells for g in each]))
 
 
 def tilt_spread_deg(normals: np.ndarray) -> float:
@@ -220,7 +210,7 @@ def select_views(views: Sequence[ViewPoints], image_size: tuple[int, int], max_v
     """Choose at most ``max_views`` diverse views (positions into ``views``).
 
     Greedy: start from the view with the most points, then repeatedly add the view that
-    best combines new image coverage (cells of an 8 x 6 grid not yet seen often), a pose
+    best combines new image coverage (cells of COVERAGE_GRID not yet seen often), a pose
     unlike every view chosen so far (board tilt, position in the image, distance) and
     many points. Views much blurrier than the rest (sharpness below half the median,
     where known) are left out while enough sharper ones remain.
@@ -249,7 +239,7 @@ def select_views(views: Sequence[ViewPoints], image_size: tuple[int, int], max_v
     diag = float(np.hypot(*image_size))
     # Feature scaling: 15 degrees of tilt ~ a quarter of the image ~ a factor 1.4 in distance.
     feats = np.hstack([geo.normals * (1.0 / np.radians(15.0)),
-                       geo.centres_px / (0.25 * diag),
+                       geo.centers_px / (0.25 * diag),
                        geo.log_distance[:, None] / np.log(1.4)])
     seen = np.zeros(geo.cells.shape[1])
     cell_count = np.maximum(geo.cells.sum(axis=1), 1)
