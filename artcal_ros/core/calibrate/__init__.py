@@ -5,6 +5,7 @@
 the node and the CLI share.
 """
 
-from artcal_ros.core.calibrate.pipeline import CalibrationResult, calibrate
+from artcal_ros.core.calibrate.pipeline import calibrate
+from artcal_ros.core.calibrate.result import CalibrationResult
 
 __all__ = ["CalibrationResult", "calibrate"]

@@ -18,8 +18,6 @@ from __future__ import annotations
 
 import time
 from collections.abc import Callable, Sequence
-from dataclasses import dataclass, field
-from typing import Any, NamedTuple
 
 import numpy as np
 
@@ -32,6 +30,7 @@ from artcal_ros.core.calibrate.quality import (
     parameter_effect_px,
     solution_camera,
 )
+from artcal_ros.core.calibrate.result import CalibrationResult, DroppedView
 from artcal_ros.core.calibrate.solve import (
     DIST_NAMES,
     MODELS,
@@ -41,7 +40,6 @@ from artcal_ros.core.calibrate.solve import (
     residuals,
     solve,
 )
-from artcal_ros.core.calibrate.summary import summary_dict, summary_text
 from artcal_ros.core.calibrate.views import (
     POINTS_MODES,
     check_views,
@@ -52,7 +50,6 @@ from artcal_ros.core.calibrate.views import (
     view_points,
     view_problem,
 )
-from artcal_ros.core.camera import CameraModel, lens_spec
 from artcal_ros.core.coverage import COVERAGE_GRID, MIN_COVERAGE
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import CalibrationError
@@ -72,101 +69,6 @@ def max_rms_px(image_size: tuple[int, int]) -> float:
     """The largest RMS reprojection error accepted for an image of this size, pixels."""
     return max(MAX_RMS_PX, 1e-3 * float(np.hypot(*image_size)))
 PARAM_EFFECT_WARN_PX = 0.5  # a parameter whose 1-sigma moves the image this much is weak
-
-
-class DroppedView(NamedTuple):
-    """A view left out of the solve: its position in the input list, its source, why."""
-
-    view_index: int
-    source: str
-    reason: str
-
-
-@dataclass(frozen=True)
-class CalibrationResult:
-    """A camera calibration and the figures that say how good it is.
-
-    Attributes:
-        camera_matrix: (3, 3) float64, pixels.
-        dist_coeffs: (n,) float64, OpenCV order: plumb_bob (k1, k2, p1, p2, k3),
-            rational_polynomial (k1, k2, p1, p2, k3, k4, k5, k6), equidistant (k1..k4).
-        model: ``plumb_bob`` | ``rational_polynomial`` | ``equidistant``.
-        image_size: (width, height), pixels.
-        points: ``centers`` or ``corners``: the correspondences used.
-        reprojection_rms_px: RMS of the point residual lengths, pixels.
-        reprojection_std_px: standard deviation of the residuals per coordinate (the
-            paper's figure: sqrt of the pooled x and y variance), pixels.
-        reprojection_max_px: largest residual length, pixels.
-        holdout_rms_px: k-fold cross-validation RMS over views, pixels (NaN if < 4 views).
-        views_used: positions in the input list of the views in the final solve.
-        views_dropped: the views left out, with the reason.
-        points_dropped: number of outlier points removed from the views used.
-        per_view_rms_px: (V,) RMS of each used view, aligned with ``views_used``.
-        rvecs, tvecs: (V, 3) T_cam_board of each used view (Rodrigues, metres).
-        std_devs: 1-sigma of each estimated parameter by name (fx, fy, cx, cy, k1, ...).
-        projection_uncertainty_rms_px, projection_uncertainty_max_px: the 1-sigma image
-            shift of the whole intrinsics' uncertainty over the image, pixels.
-        coverage: share of an 8 x 6 grid of the image holding at least one point.
-        warnings: what the data could not pin down and what to add.
-        points_px: (P, 2) image points of the final solve; residuals_px: (P, 2) measured
-            minus projected; point_view: (P,) their view's position in the input list.
-        outliers_px: (Q, 2) image points dropped as outliers.
-        solve_time_s: wall time of :func:`calibrate`, seconds.
-        free: the parameters estimated (:func:`~.model.free_parameters`; ``f`` is fx = fy
-            solved as one); the others were held (``calibrate.*`` parameters).
-    """
-
-    camera_matrix: np.ndarray
-    dist_coeffs: np.ndarray
-    model: str
-    image_size: tuple[int, int]
-    points: str
-    reprojection_rms_px: float
-    reprojection_std_px: float
-    reprojection_max_px: float
-    holdout_rms_px: float
-    views_used: tuple[int, ...]
-    views_dropped: tuple[DroppedView, ...]
-    points_dropped: int
-    per_view_rms_px: np.ndarray
-    rvecs: np.ndarray
-    tvecs: np.ndarray
-    std_devs: dict[str, float]
-    projection_uncertainty_rms_px: float
-    projection_uncertainty_max_px: float
-    coverage: float
-    warnings: tuple[str, ...]
-    points_px: np.ndarray = field(repr=False)
-    residuals_px: np.ndarray = field(repr=False)
-    point_view: np.ndarray = field(repr=False)
-    outliers_px: np.ndarray = field(repr=False)
-    solve_time_s: float = 0.0
-    free: tuple[str, ...] = ()
-
-    @property
-    def camera(self) -> CameraModel:
-        """The calibrated camera (K, full distortion vector of the model, image size)."""
-        spec = lens_spec(self.model)
-        dist = np.zeros(spec.n_dist)
-        d = np.asarray(self.dist_coeffs, dtype=np.float64).ravel()[:spec.n_dist]
-        dist[:len(d)] = d
-        return CameraModel(self.model, self.camera_matrix, dist, self.image_size)
-
-    def summary(self, *, long: bool = False) -> str:
-        """The calibration in words: one line, or one screen with ``long``.
-
-        The one formatter of a result (:func:`.summary.summary_text`): the node's
-        ``~/calibrate`` answer and log and ``artcal calibrate``'s output both come from it.
-        """
-        return summary_text(self, long=long)
-
-    def summary_line(self) -> str:
-        """One line: model, intrinsics with 1-sigma, errors, views (``summary()``)."""
-        return summary_text(self)
-
-    def to_summary_dict(self) -> dict[str, Any]:
-        """JSON-ready summary (the ``summary.json`` of ``artcal calibrate --report``)."""
-        return summary_dict(self)
 
 
 def _stats(res: Sequence[np.ndarray]) -> tuple[float, float, float]:
@@ -230,15 +132,24 @@ def _reject(views: list[ViewPoints], res: list[np.ndarray], board: Board, size: 
             kept.append(v)
             continue
         outliers.append(v.image_points[~good])
-        sub = v.subset(good)
-        problem = view_problem(sub, board)
-        if problem is not None:
-            dropped.append(DroppedView(v.index, v.source,
-                                       f"after removing outlier points: {problem}"))
+        sub = _still_usable(v, good, board, dropped, "outlier points")
+        if sub is None:
             continue
         removed += int((~good).sum())
         kept.append(sub)
     return kept, removed
+
+
+def _still_usable(view: ViewPoints, good: np.ndarray, board: Board, dropped: list[DroppedView],
+                  what: str) -> ViewPoints | None:
+    """The view's ``good`` points, or None (the view recorded as dropped, saying why) when
+    they no longer make a usable view."""
+    sub = view.subset(good)
+    problem = view_problem(sub, board)
+    if problem is None:
+        return sub
+    dropped.append(DroppedView(view.index, view.source, f"after removing {what}: {problem}"))
+    return None
 
 
 def _layout_check(views: list[ViewPoints], board: Board, dropped: list[DroppedView],
@@ -263,11 +174,8 @@ def _layout_check(views: list[ViewPoints], board: Board, dropped: list[DroppedVi
             continue
         ids = np.unique(v.marker_ids)
         good = ~np.isin(v.marker_ids, ids[bad])
-        sub = v.subset(good)
-        problem = view_problem(sub, board)
-        if problem is not None:
-            dropped.append(DroppedView(v.index, v.source,
-                                       f"after removing misplaced markers: {problem}"))
+        sub = _still_usable(v, good, board, dropped, "misplaced markers")
+        if sub is None:
             continue
         outliers.append(v.image_points[~good])
         removed += int((~good).sum())

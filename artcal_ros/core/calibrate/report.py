@@ -14,7 +14,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from artcal_ros.core.calibrate.pipeline import CalibrationResult
+from artcal_ros.core.calibrate.result import CalibrationResult
 from artcal_ros.core.calibrate.views import COVERAGE_GRID
 from artcal_ros.core.errors import ArtcalError
 

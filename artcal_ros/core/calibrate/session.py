@@ -31,7 +31,7 @@ from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
 from artcal_ros.core.params import output_path
 
 if TYPE_CHECKING:
-    from artcal_ros.core.calibrate.pipeline import CalibrationResult
+    from artcal_ros.core.calibrate.result import CalibrationResult
 
 
 class _ThreadRegistry:
