@@ -2,7 +2,7 @@
 
 The Python API::
 
-    from artcal_ros import Board, calibrate, detect, load_params
+    from artcal_ros import Board, Detector, calibrate, detect, load_params
 """
 
 from __future__ import annotations
@@ -26,6 +26,7 @@ __all__ = [
     "Board",
     "BoardError",
     "CalibrationError",
+    "Detector",
     "ImageFormatError",
     "ParameterError",
     "calibrate",
@@ -40,6 +41,10 @@ def __getattr__(name: str) -> Any:
         from artcal_ros.core.detect import detect
 
         return detect
+    if name == "Detector":
+        from artcal_ros.core.detect import Detector
+
+        return Detector
     if name == "calibrate":
         from artcal_ros.core.calibrate import calibrate
 
