@@ -32,7 +32,8 @@ def to_bgr8(image: np.ndarray) -> np.ndarray:
 
 
 def render_overlay(image: np.ndarray, dets: Detections | None, counts: np.ndarray,
-                   readiness: Readiness, *, kept: bool = False) -> np.ndarray:
+                   readiness: Readiness, *, kept: bool = False,
+                   max_width: int | None = None) -> np.ndarray:
     """The frame with its markers, the coverage so far and what is still missing.
 
     Args:
@@ -41,12 +42,21 @@ def render_overlay(image: np.ndarray, dets: Detections | None, counts: np.ndarra
         counts: (rows, cols) coverage counts over the image (see ViewCollector.counts).
         readiness: the collection's state, printed as text.
         kept: whether this frame was kept as a calibration view (drawn as a green frame).
+        max_width: scale the picture down to at most this width, pixels (the aspect ratio
+            kept); None: full size. The frame is shrunk before anything is drawn, so a large
+            camera costs little to draw and to send.
 
     Returns:
-        (H, W, 3) uint8 BGR.
+        (H', W', 3) uint8 BGR, W' = min(W, max_width).
     """
     out = to_bgr8(image)
     h, w = out.shape[:2]
+    zoom = 1.0
+    if max_width is not None and w > max_width:
+        zoom = max_width / w
+        size = (int(max_width), max(1, round(h * zoom)))
+        out = cv2.resize(out, size, interpolation=cv2.INTER_AREA)
+        h, w = out.shape[:2]
     rows, cols = counts.shape
     # Tint covered cells green: a person sees at a glance where the board has not been.
     tint = np.zeros_like(out)
@@ -60,12 +70,13 @@ def render_overlay(image: np.ndarray, dets: Detections | None, counts: np.ndarra
     scale = max(0.4, min(w, h) / 900.0)
     thick = max(1, round(scale * 2))
     if dets is not None and len(dets):
-        quads = np.round(dets.corners_px).astype(np.int32)
+        # pixel centres: (0, 0) is the centre of the top-left pixel at either scale
+        quads = np.round((dets.corners_px + 0.5) * zoom - 0.5).astype(np.int32)
         cv2.polylines(out, list(quads), True, _GREEN, thick, cv2.LINE_AA)
         for k, marker_id in enumerate(dets.ids):
             # A red dot on each marker's first (top-left on the board) corner shows orientation.
             cv2.circle(out, (int(quads[k, 0, 0]), int(quads[k, 0, 1])), thick + 1, _RED, -1)
-            center = dets.centers_px[k]
+            center = (dets.centers_px[k] + 0.5) * zoom - 0.5
             cv2.putText(out, str(int(marker_id)), (int(center[0]) - 8, int(center[1]) + 4),
                         cv2.FONT_HERSHEY_SIMPLEX, 0.8 * scale, _YELLOW, thick, cv2.LINE_AA)
     if kept:

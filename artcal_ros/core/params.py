@@ -88,6 +88,10 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               check=_positive),
     ParamSpec("max_views", 40, "Views a solve uses at most (the most informative are chosen).",
               check=_positive),
+    ParamSpec("overlay.max_width", 960,
+              "Width the node's ~/overlay image is scaled down to at most, pixels (a 1080p bgr8 "
+              "overlay is 6 MB a message; best-effort subscribers often receive none).",
+              check=_positive),
 )
 
 SPECS: dict[str, ParamSpec] = {s.name: s for s in PARAMETERS}

@@ -145,7 +145,8 @@ class CalibratorNode(Node):
         if self._stopping.is_set() or self.overlay_pub.get_subscription_count() == 0:
             return
         snap = self.collector.snapshot()  # counts and text of one and the same collection
-        picture = render_overlay(image, dets, snap.counts, snap.readiness, kept=kept)
+        picture = render_overlay(image, dets, snap.counts, snap.readiness, kept=kept,
+                                 max_width=int(self.params["overlay.max_width"]))
         overlay = msgs.bgr8_image(picture, msgs.header(msg.header.stamp, self.frame_id))
         with self._output_lock:
             if not self._closed:

@@ -312,3 +312,25 @@ def test_counters_lose_no_count_across_threads() -> None:
     assert final.seen == final.broken == 4 * per_thread
     # Every broken frame is reported as new exactly once.
     assert sum(reports) + final.new_broken == 4 * per_thread
+
+
+def test_overlay_is_scaled_down_to_its_max_width() -> None:
+    cam = Camera("plumb_bob", np.array([[1400.0, 0, 959.5], [0, 1400.0, 539.5], [0, 0, 1]]),
+                 np.zeros(5), (1920, 1080))
+    rvec, tvec = np.array([0.1, -0.2, 0.0]), np.array([-0.6, -0.3, 1.6])
+    corners = project_points(cam, BOARD.object_corners().reshape(-1, 3), rvec, tvec)
+    centers = project_points(cam, BOARD.object_centers(), rvec, tvec)
+    dets = Detections(BOARD.ids, corners.reshape(-1, 4, 2), centers, cam.size)
+    snap = ViewCollector(BOARD, CoverageConfig(min_views=3)).snapshot()
+    frame = np.full((1080, 1920), 255, np.uint8)
+    small = render_overlay(frame, dets, snap.counts, snap.readiness, max_width=960)
+    full = render_overlay(frame, dets, snap.counts, snap.readiness)
+    assert small.shape == (540, 960, 3) and full.shape == (1080, 1920, 3)
+    assert render_overlay(frame[:100, :200], None, snap.counts, snap.readiness,
+                          max_width=960).shape == (100, 200, 3)
+    # the marker outlines land where the detections are, at the smaller scale
+    drawn = np.argwhere((small[..., 1] > 150) & (small[..., 0] < 100) & (small[..., 2] < 100))
+    x0, y0 = (corners.min(axis=0) + 0.5) / 2 - 0.5
+    x1, y1 = (corners.max(axis=0) + 0.5) / 2 - 0.5
+    assert drawn[:, 1].min() >= x0 - 3 and drawn[:, 1].max() <= x1 + 3
+    assert drawn[:, 0].min() >= y0 - 3 and drawn[:, 0].max() <= y1 + 3
