@@ -1,6 +1,6 @@
 """``make bench``: every benchmark, in turn, each against plain OpenCV in the same run.
 
-    python -m bench            # the full set (about half an hour on 2 cores)
+    python -m bench            # the full set (about 40 minutes on 2 cores)
     python -m bench --quick    # smaller versions of each (a few minutes)
 
 The figures go to stdout as tables; docs/benchmarks.md records a full run.
@@ -23,6 +23,8 @@ def main(argv: list[str] | None = None) -> int:
         ("detection", ["bench.detection", *quick]),
         ("calibration", ["bench.calibration", *quick]),
         ("real photographs", ["bench.real_photos", "--markdown"]),
+        # The real node over DDS; the full runs take ~10 minutes, --quick one short run.
+        ("node under load", ["bench.node_load", *quick]),
     ]
     failed = 0
     for name, module_args in steps:
