@@ -172,9 +172,12 @@ class CalibratorNode(Node):
                                                       msgs.header(stamp, self.frame_id)))
 
     def _publish_diagnostics(self) -> None:
+        # Dropped frames are read before the counts: every frame the worker dropped was
+        # counted as seen first, so processed + dropped never exceeds seen in one report.
+        dropped = self.worker.dropped
         self.diag_pub.publish(diagnostic_array(
             self.get_name(), str(self.params["camera_name"]), self.counters.report(),
-            self.worker.dropped, self.collector.readiness(), self.last_summary,
+            dropped, self.collector.readiness(), self.last_summary,
             self.get_clock().now().to_msg()))
 
     # --- services -----------------------------------------------------------------
