@@ -29,6 +29,7 @@ import numpy as np
 
 from artcal_ros.core.detect.lens import Lens, LensPool
 from artcal_ros.core.detect.plumb import estimate_division, lens_bend
+from artcal_ros.core.detect.profiles import gather_samples
 from artcal_ros.core.detect.sampling import bilinear
 from artcal_ros.core.detect.sides import (
     SideModel,
@@ -42,6 +43,8 @@ from artcal_ros.core.homography import shortest_sides
 __all__ = ["EdgeFit", "refine_quads", "same_edges"]
 
 _STEP = 0.25  # profile sample spacing, pixels
+FIT_ITERATIONS = 4
+FIT_TOL_PX = 3e-4
 
 
 @dataclass(frozen=True)
@@ -141,9 +144,9 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
     # edge beyond a narrow quiet zone waits for the lens-aware pass below.
     used_lens: Lens | None = lens
     later = lens is None and allow_curvature
-    _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same, quiet_modules,
-                  passes, order, None, margin_px, None if later else outer_same,
-                  beyond_modules)
+    fit_blur = _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same,
+                             quiet_modules, passes, order, None, margin_px,
+                             None if later else outer_same, beyond_modules)
     if later:
         used_lens = estimate_division(model, quads, t, present, lin.shape, pool=lens_pool)
     if used_lens is not None:
@@ -151,13 +154,13 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         model.coef[:, 2] = lens_bend(used_lens, a, u, n, length)
         _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same,
                       quiet_modules, 1, np.full(S, 2), used_lens, margin_px, outer_same,
-                      beyond_modules)
+                      beyond_modules, fit_blur)
     else:
         _drop_flat_parabolas(model)
         if later and outer_same is not None:
             _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same,
                           quiet_modules, 1, model.order, None, margin_px, outer_same,
-                          beyond_modules)
+                          beyond_modules, fit_blur)
     corners, sigma = intersect_sides(model, a, u, n, M)
     side_ok = model.count >= 4
     ok = side_ok.reshape(M, 4).all(axis=1) & np.isfinite(corners).all(axis=(1, 2))
@@ -282,7 +285,8 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
                   quiet_modules: float, passes: int, fit_order: np.ndarray,
                   lens: Lens | None = None,
                   corner_clear: float = 1.5, outer_same: np.ndarray | None = None,
-                  beyond_modules: float = 1.0) -> None:
+                  beyond_modules: float = 1.0, start_blur: np.ndarray | None = None
+                  ) -> np.ndarray:
     """Blurred-step model fits (see :mod:`~artcal_ros.core.detect.step_model`); updates ``model``.
 
     ``fit_order`` (S,) says per side whether the parabola term is free (3) or held
@@ -302,10 +306,15 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         fit_order: (S,) see above.
         lens: optional lens (places the code cells along each side).
         corner_clear: see above, pixels.
+        start_blur: (S,) the blur the model fit starts from (an earlier pass's), pixels.
+
+    Returns:
+        (S,) the fitted blur, pixels.
     """
     S = t.shape[0]
     M = S // 4
-    blur = np.full(S, 0.8)
+    blur = np.full(S, 0.8)  # along the side, for the code cells
+    fit_blur = np.full(S, 0.6) if start_blur is None else start_blur
     for _ in range(max(passes, 1)):
         corners, _ = intersect_sides(model, a, u, n, M)
         bad = ~np.isfinite(corners).all(axis=(1, 2))
@@ -333,63 +342,41 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         # samples: the pixels nearest a grid of points along and across each side, so
         # the model sees raw pixel values (interpolation would add its own, phase-
         # dependent edge shifts)
-        offsets = np.arange(-np.ceil(inner.max()), np.ceil(outer.max()) + 1.0)
-        pts = base[:, :, None, :] + offsets[None, None, :, None] * n[:, None, None, :]
-        h, w = lin.shape
-        px = np.clip(np.rint(pts[..., 0]), 0, w - 1)
-        py = np.clip(np.rint(pts[..., 1]), 0, h - 1)
-        rel_x = px - a[:, None, None, 0]
-        rel_y = py - a[:, None, None, 1]
-        t_s = rel_x * u[:, None, None, 0] + rel_y * u[:, None, None, 1]
-        s_s = rel_x * n[:, None, None, 0] + rel_y * n[:, None, None, 1]
-        e_s = model.offset(t_s.reshape(S, -1)).reshape(t_s.shape)
-        on_image = ((pts[..., 0] > -0.5) & (pts[..., 0] < w - 0.5)
-                    & (pts[..., 1] > -0.5) & (pts[..., 1] < h - 0.5))
-        mask = (present[..., None] & on_image & (s_s - e_s >= -inner[:, None, None])
-                & (s_s - e_s <= outer[:, None, None])
-                & ((s_s - e_s >= 0.0) | _clear_of_neighbours(corners, px, py, corner_clear)))
-        # from here on only the samples used, flat and grouped by side
-        sid = np.nonzero(mask)[0]
-        px_c, py_c, t_c, s_c = px[mask], py[mask], t_s[mask], s_s[mask]
-        values = lin[py_c.astype(np.intp), px_c.astype(np.intp)].astype(np.float64)
+        span = (-int(np.ceil(inner.max())), int(np.ceil(outer.max())))
+        samples, sid, used = gather_samples(lin, a, u, n, t, present, model.coef, model.length,
+                                            model.order >= 3, span, inner, outer,
+                                            _neighbour_lines(corners), corner_clear)
+        px_c, py_c, t_c, s_c, values = samples.T
         basis = model.basis_at(t_c, sid)
         along, m_s = module_geometry_at(corners, np.stack([px_c, py_c], axis=-1), sid, n,
                                         bits, lens)
         if rows:
             blur_modules = (blur * (bits + 2) / model.length)[sid]
             same = np.asarray(inner_same, bool).reshape(S, rows, bits)[sid]
-            far = np.stack([far_cells(along.astype(np.float32), same[:, r],
-                                      blur_modules.astype(np.float32))
+            far = np.stack([far_cells(along, same[:, r], blur_modules)
                             for r in range(rows)], axis=-1)
         else:
             far = np.zeros((len(sid), 1), dtype=np.float32)
-        coef, cov, blur = fit_step_model(
+        coef, cov, fit_blur = fit_step_model(
             values, s_c, sid, S, basis, model.coef, far, m_s, fit_order, n,
             outer=None if known is None else known[sid].astype(np.float32),
-            quiet_px=None if known is None else quiet_modules * m_s)
+            quiet_px=None if known is None else quiet_modules * m_s, blur0=fit_blur,
+            tol_px=FIT_TOL_PX, iterations=FIT_ITERATIONS)
+        blur = fit_blur
         model.coef = coef
         model.cov = cov
-        model.count = mask.any(axis=2).sum(axis=1).astype(np.intp)
+        model.count = used
+    return fit_blur
 
 
-def _clear_of_neighbours(corners: np.ndarray, px: np.ndarray, py: np.ndarray,
-                         clear: float) -> np.ndarray:
-    """(S, ...) bool: points (px, py) of each side at least ``clear`` inside its two neighbours.
+def _neighbour_lines(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A point (S, 2, 2) on, and the inward normal (S, 2, 2) of, each side's two neighbours.
 
-    Args:
-        corners: (M, 4, 2) current quads; side k runs from corner k to k+1.
-        px, py: (S, ...) point coordinates, S = 4 M, grouped by side.
-        clear: pixels.
+    Index 0 is the previous side, 1 the next one, of the marker's quad (M, 4, 2).
     """
     start, _, outward, _ = side_frames(corners)
     M = len(corners)
     start, inward = start.reshape(M, 4, 2), -outward.reshape(M, 4, 2)
-    extra = (1,) * (px.ndim - 1)
-    ok = np.ones(px.shape, dtype=bool)
-    for shift in (-1, 1):  # the previous and the next side
-        p0 = np.roll(start, -shift, axis=1).reshape(4 * M, 2)
-        nin = np.roll(inward, -shift, axis=1).reshape(4 * M, 2)
-        dist = ((px - p0[:, 0].reshape(-1, *extra)) * nin[:, 0].reshape(-1, *extra)
-                + (py - p0[:, 1].reshape(-1, *extra)) * nin[:, 1].reshape(-1, *extra))
-        ok &= dist >= clear
-    return ok
+    p0 = np.stack([np.roll(start, -shift, axis=1).reshape(4 * M, 2) for shift in (-1, 1)], 1)
+    nin = np.stack([np.roll(inward, -shift, axis=1).reshape(4 * M, 2) for shift in (-1, 1)], 1)
+    return p0, nin
