@@ -29,8 +29,7 @@ import numpy as np
 
 from artcal_ros.core.detect.lens import Lens, LensPool
 from artcal_ros.core.detect.plumb import estimate_division, lens_bend
-from artcal_ros.core.detect.profiles import gather_samples
-from artcal_ros.core.detect.sampling import bilinear
+from artcal_ros.core.detect.profiles import coarse_offsets, gather_samples
 from artcal_ros.core.detect.sides import (
     SideModel,
     intersect_sides,
@@ -182,50 +181,6 @@ def same_edges(new: np.ndarray, old: np.ndarray) -> np.ndarray:
     return np.asarray(moved < np.maximum(3.0, 0.1 * shortest_sides(old)))
 
 
-def _profiles(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
-              t: np.ndarray, s0: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """Intensities (S, K, J) at ``a + t u + (s0 + offsets_j) n``.
-
-    Args:
-        lin: (H, W) linear intensity image.
-        a, u, n: (S, 2) side frames.
-        t, s0: (S, K) along-side positions and normal offsets of the profiles, pixels.
-        offsets: (J,) sample offsets along the normal, pixels.
-    """
-    base = a[:, None, :] + t[..., None] * u[:, None, :] + s0[..., None] * n[:, None, :]
-    pts = base[:, :, None, :] + offsets[None, None, :, None] * n[:, None, None, :]
-    return bilinear(lin, pts[..., 0], pts[..., 1])
-
-
-def _coarse_offsets(prof: np.ndarray, offsets: np.ndarray, sign: np.ndarray,
-                    lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Offset of the strongest gradient of the expected sign inside [lo, hi] per side.
-
-    Args:
-        prof: (S, K, J) profiles sampled at ``offsets`` (J,), pixels.
-        sign: (S,) +1 where intensity rises outward (dark border), -1 where it falls.
-        lo, hi: (S,) search window along the normal, pixels.
-
-    Returns:
-        (S, K) offsets, pixels, and a validity mask (S, K).
-    """
-    g = np.zeros_like(prof)
-    g[..., 1:-1] = prof[..., 2:] - prof[..., :-2]  # 1-pixel central difference
-    g *= sign[:, None, None]
-    inside = (offsets[None, :] >= lo[:, None]) & (offsets[None, :] <= hi[:, None])
-    g = np.where(inside[:, None, :], g, -np.inf)
-    j = np.clip(np.argmax(g, axis=-1), 1, len(offsets) - 2)
-    gm = np.take_along_axis(g, (j - 1)[..., None], -1)[..., 0]
-    g0 = np.take_along_axis(g, j[..., None], -1)[..., 0]
-    gp = np.take_along_axis(g, (j + 1)[..., None], -1)[..., 0]
-    denom = gm - 2.0 * g0 + gp
-    with np.errstate(all="ignore"):
-        delta = np.where(np.isfinite(denom) & (denom < 0), 0.5 * (gm - gp) / denom, 0.0)
-    delta = np.clip(np.nan_to_num(delta), -0.5, 0.5)
-    valid = np.isfinite(g0) & (g0 > 0)
-    return offsets[j] + delta * (offsets[1] - offsets[0]), valid
-
-
 def _coarse_lines(lin: np.ndarray, quads: np.ndarray, sign: np.ndarray, lo: np.ndarray,
                   hi: np.ndarray, margin_px: float, max_profiles: int
                   ) -> tuple[SideModel, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
@@ -238,7 +193,7 @@ def _coarse_lines(lin: np.ndarray, quads: np.ndarray, sign: np.ndarray, lo: np.n
     Args:
         lin: (H, W) linear intensity image.
         quads: (M, 4, 2) approximate corners, pixels.
-        sign: (S,) expected sign of the gradient across each side (see :func:`_coarse_offsets`).
+        sign: (S,) +1 where intensity rises outward (dark border), -1 where it falls.
         lo, hi: (S,) search window along each side's normal, pixels.
         margin_px: along-side clearance from the corners, pixels.
         max_profiles: most profiles per side.
@@ -259,8 +214,7 @@ def _coarse_lines(lin: np.ndarray, quads: np.ndarray, sign: np.ndarray, lo: np.n
     first = min(float(lo.min()), 0.0) - 1.0
     last = max(float(hi.max()), 0.0) + 1.0
     offsets: np.ndarray = np.arange(first, last + 1e-9, 2 * _STEP)
-    prof = _profiles(lin, a, u, n, tc, np.zeros_like(tc), offsets)
-    s_edge, valid = _coarse_offsets(prof, offsets, sign, lo, hi)
+    s_edge, valid = coarse_offsets(lin, a, u, n, tc, offsets, sign, lo, hi)
     model.fit(tc, s_edge, valid & pc, min_sigma_px=0.05, reject_sigmas=3.0)
     return model, t, present, a, u, n
 

@@ -9,8 +9,8 @@ Two reads serve the edge refinement (:mod:`artcal_ros.core.detect.edges`):
 
 Both loop over sides and profiles in compiled code: the NumPy form built
 (S, K, J) arrays of every candidate point and masked most of them away again,
-which cost more than the fit itself. Sides are independent, so they run in
-parallel. A point on side k is ``a + t u + s n`` as in :mod:`.sides`.
+which cost more than the fit itself. A point on side k is ``a + t u + s n``
+as in :mod:`.sides`.
 """
 
 from __future__ import annotations
@@ -18,12 +18,12 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 __all__ = ["coarse_offsets", "gather_samples"]
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def _bilinear_at(img: np.ndarray, x: float, y: float) -> float:
     """One bilinear sample of img (H, W) at (x, y), clamped to the image (as ``bilinear``)."""
     h, w = img.shape
@@ -38,7 +38,7 @@ def _bilinear_at(img: np.ndarray, x: float, y: float) -> float:
     return top * (1.0 - fy) + bottom * fy
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def _coarse_kernel(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
                    t: np.ndarray, offsets: np.ndarray, sign: np.ndarray, lo: np.ndarray,
                    hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -48,7 +48,7 @@ def _coarse_kernel(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
     out = np.zeros((S, K))
     valid = np.zeros((S, K), dtype=np.bool_)
     step = offsets[1] - offsets[0]
-    for s in prange(S):
+    for s in range(S):
         prof = np.empty(J)
         g = np.empty(J)
         for k in range(K):
@@ -107,7 +107,7 @@ def coarse_offsets(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
                           np.ascontiguousarray(lo, f64), np.ascontiguousarray(hi, f64))
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def _gather_kernel(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
                    t: np.ndarray, present: np.ndarray, coef: np.ndarray, length: np.ndarray,
                    curved: np.ndarray, first: int, last: int, inner: np.ndarray,
@@ -120,7 +120,7 @@ def _gather_kernel(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
     buf = np.empty((S, K * J, 5))
     count = np.zeros(S, np.intp)
     used = np.zeros(S, np.intp)
-    for s in prange(S):
+    for s in range(S):
         c0, c1, c2 = coef[s, 0], coef[s, 1], coef[s, 2] if curved[s] else 0.0
         L = length[s]
         lo_j = max(first, -math.ceil(inner[s]) - 1)

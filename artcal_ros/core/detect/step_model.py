@@ -27,7 +27,7 @@ from __future__ import annotations
 import math
 
 import numpy as np
-from numba import njit, prange
+from numba import njit
 
 # A&S 7.1.26 coefficients of erfc (absolute error < 1.5e-7)
 _P = 0.3275911
@@ -36,7 +36,7 @@ _INV_SQRT2 = 1.0 / math.sqrt(2.0)
 _INV_SQRT2PI = 1.0 / math.sqrt(2.0 * math.pi)
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def norm_cdf_pdf(z: float) -> tuple[float, float]:
     """Standard normal CDF and density of a scalar z, sharing one exponential.
 
@@ -53,7 +53,7 @@ def norm_cdf_pdf(z: float) -> tuple[float, float]:
     return cdf, e * _INV_SQRT2PI
 
 
-@njit(cache=True, inline="always")
+@njit(cache=True, error_model="numpy", inline="always")
 def pixel_esf(d: float, sigma: float, box_a: float, box_b: float
               ) -> tuple[float, float, float]:
     """Edge-spread function of a square pixel with Gaussian blur, and its derivatives.
@@ -105,7 +105,7 @@ def pixel_esf(d: float, sigma: float, box_a: float, box_b: float
     return s2 * sig2, s1 * sigma / (a * b), (2.0 * s2 - sz1) * sig2
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """x with A x = b for a small square A (n, n) and b (n, k): LU with partial pivoting.
 
@@ -141,7 +141,7 @@ def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     return x
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _median_of(values: np.ndarray, rel: np.ndarray, lo: int, hi: int, below: bool) -> float:
     """Median of values[lo:hi] where rel < -0.3 (below) or rel > 0.3 (not below); NaN for none."""
     buf = np.empty(hi - lo)
@@ -155,7 +155,7 @@ def _median_of(values: np.ndarray, rel: np.ndarray, lo: int, hi: int, below: boo
     return float(np.median(buf[:m]))
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _normal_equations(p: np.ndarray, lo: int, hi: int, values: np.ndarray, s: np.ndarray,
                       basis: np.ndarray, far: np.ndarray, module_px: np.ndarray,
                       outer: np.ndarray, quiet_px: np.ndarray, box_a: float, box_b: float,
@@ -246,20 +246,20 @@ def _normal_equations(p: np.ndarray, lo: int, hi: int, values: np.ndarray, s: np
     return cost
 
 
-@njit(cache=True, parallel=True)
+@njit(cache=True, error_model="numpy", nogil=True)
 def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.ndarray,
                coef0: np.ndarray, far: np.ndarray, module_px: np.ndarray,
                fit_order: np.ndarray, normal: np.ndarray, outer: np.ndarray,
                quiet_px: np.ndarray, cov_scale: float, iterations: int, blur0: np.ndarray,
                w_clip: float, tol_px: float
                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Damped Gauss-Newton fit of every side (sides in parallel); see :func:`fit_step_model`."""
+    """Damped Gauss-Newton fit of every side, one after the other; see :func:`fit_step_model`."""
     S = len(starts) - 1
     coef = np.empty((S, 3))
     cov = np.zeros((S, 3, 3))
     blur = np.empty(S)
     evals = np.zeros(S, np.intp)
-    for k in prange(S):
+    for k in range(S):
         lo, hi = starts[k], starts[k + 1]
         quad = 1.0 if fit_order[k] >= 3 else 0.0
         box_a, box_b = abs(normal[k, 0]), abs(normal[k, 1])
@@ -344,7 +344,7 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
 
     The N samples of all S sides come as flat arrays, each side's samples together
     (``side`` non-decreasing); only the samples to use are passed. Each side is
-    solved on its own by damped Gauss-Newton (a compiled kernel, sides in parallel).
+    solved on its own by damped Gauss-Newton (a compiled kernel).
 
     Args:
         values: (N,) linear intensities of the samples.
@@ -387,7 +387,7 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
     return out[0], out[1], out[2]
 
 
-@njit(cache=True)
+@njit(cache=True, error_model="numpy")
 def _far_cells(along: np.ndarray, same: np.ndarray, blur_modules: np.ndarray) -> np.ndarray:
     """Kernel of :func:`far_cells` on flat (N,) positions and blurs."""
     bits = same.shape[1]
