@@ -43,6 +43,7 @@ __all__ = ["EdgeFit", "refine_quads", "same_edges"]
 
 _STEP = 0.25  # profile sample spacing, pixels
 FIT_ITERATIONS = 4
+FIT_ITERATIONS_WARM = 4
 FIT_TOL_PX = 3e-4
 
 
@@ -300,7 +301,7 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         samples, sid, used = gather_samples(lin, a, u, n, t, present, model.coef, model.length,
                                             model.order >= 3, span, inner, outer,
                                             _neighbour_lines(corners), corner_clear)
-        px_c, py_c, t_c, s_c, values = samples.T
+        px_c, py_c, t_c, s_c, values = samples
         basis = model.basis_at(t_c, sid)
         along, m_s = module_geometry_at(corners, np.stack([px_c, py_c], axis=-1), sid, n,
                                         bits, lens)
@@ -315,7 +316,8 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
             values, s_c, sid, S, basis, model.coef, far, m_s, fit_order, n,
             outer=None if known is None else known[sid].astype(np.float32),
             quiet_px=None if known is None else quiet_modules * m_s, blur0=fit_blur,
-            tol_px=FIT_TOL_PX, iterations=FIT_ITERATIONS)
+            tol_px=FIT_TOL_PX,
+            iterations=FIT_ITERATIONS if start_blur is None else FIT_ITERATIONS_WARM)
         blur = fit_blur
         model.coef = coef
         model.cov = cov

@@ -197,7 +197,7 @@ def gather_samples(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
         clear: pixels.
 
     Returns:
-        samples (N, 5): x, y (the pixel), t, s (its along-side and normal
+        samples (5, N): x, y (the pixel), t, s (its along-side and normal
         coordinates, pixels) and its value; side (N,) int, non-decreasing;
         profiles (S,) int, the profiles with at least one sample.
     """
@@ -210,5 +210,17 @@ def gather_samples(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
         int(offsets[0]), int(offsets[1]), np.ascontiguousarray(inner, f64),
         np.ascontiguousarray(outer, f64), np.ascontiguousarray(neighbours[0], f64),
         np.ascontiguousarray(neighbours[1], f64), float(clear))
-    keep = np.arange(buf.shape[1])[None, :] < count[:, None]
-    return buf[keep], np.repeat(np.arange(len(a)), count), used
+    return _flatten(buf, count), np.repeat(np.arange(len(a)), count), used
+
+
+@njit(cache=True, error_model="numpy")
+def _flatten(buf: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """(5, N) rows x, y, t, s, value of the first count[s] samples of every side's buffer."""
+    out = np.empty((buf.shape[2], count.sum()))
+    m = 0
+    for s in range(len(count)):
+        for i in range(count[s]):
+            for c in range(buf.shape[2]):
+                out[c, m] = buf[s, i, c]
+            m += 1
+    return out

@@ -15,6 +15,7 @@ import numpy as np
 from numba import njit
 
 from artcal_ros.core.detect.lens import Lens
+from artcal_ros.core.detect.linalg import solve
 from artcal_ros.core.homography import module_homographies
 
 
@@ -54,27 +55,6 @@ def tau_basis(t: np.ndarray, length: np.ndarray, curved: np.ndarray) -> np.ndarr
     tau = 2.0 * t / length - 1.0
     quad = np.where(curved, tau * tau - 1.0 / 3.0, 0.0)
     return np.stack([np.ones_like(tau), tau, quad], axis=-1)
-
-
-def normal_equations(A: np.ndarray, w: np.ndarray, s: np.ndarray,
-                     pad: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Normal equations of a weighted least-squares fit of s ~ A coef, one per side.
-
-    Args:
-        A: (S, K, 3) design matrices (see :func:`tau_basis`).
-        w: (S, K) weights (0 for unused points).
-        s: (S, K) observations (finite everywhere).
-        pad: optional (S, 3, 3) added to the normal matrix (keeps unused terms regular).
-
-    Returns:
-        N (S, 3, 3) and rhs (S, 3, 1); a tiny ridge keeps N regular for empty sides.
-    """
-    AtW = (A * w[..., None]).transpose(0, 2, 1)
-    N = np.matmul(AtW, A)
-    if pad is not None:
-        N = N + pad
-    N = N + 1e-9 * np.eye(3)
-    return N, np.matmul(AtW, s[..., None])
 
 
 class SideModel:
@@ -125,35 +105,88 @@ class SideModel:
             reject_sigmas: rejection threshold, in robust sigmas.
             iterations: reweighting rounds.
         """
-        A = self.basis(t)
-        w = valid.astype(np.float64)
-        s = np.where(valid, s, 0.0)
-        eye = np.eye(3)
-        # an unused parabola term gets an identity row so the batched solve stays regular
-        pad = np.where(self.order >= 3, 0.0, 1.0)[:, None, None] * eye[2][None, :, None] \
-            * eye[2][None, None, :]
+        f64 = np.float64
+        self.coef, self.cov, self.count = _robust_fit(
+            np.ascontiguousarray(t, f64), np.ascontiguousarray(s, f64),
+            np.ascontiguousarray(valid, bool), np.ascontiguousarray(self.length, f64),
+            np.ascontiguousarray(self.order >= 3), float(min_sigma_px), float(reject_sigmas),
+            int(iterations))
+
+
+@njit(cache=True, error_model="numpy")
+def _robust_fit(t: np.ndarray, s: np.ndarray, valid: np.ndarray, length: np.ndarray,
+                curved: np.ndarray, min_sigma: float, reject: float, iterations: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Kernel of :meth:`SideModel.fit`: coef (S, 3), cov (S, 3, 3), count (S,)."""
+    S, K = t.shape
+    coef = np.zeros((S, 3))
+    cov = np.zeros((S, 3, 3))
+    count = np.zeros(S, np.intp)
+    A = np.empty((K, 3))
+    obs = np.empty(K)
+    res = np.empty(K)
+    w = np.empty(K)
+    buf = np.empty(K)
+    N = np.empty((3, 3))
+    rhs = np.empty((3, 1))
+    for k in range(S):
+        for j in range(K):
+            tau = 2.0 * t[k, j] / length[k] - 1.0
+            A[j, 0], A[j, 1] = 1.0, tau
+            A[j, 2] = tau * tau - 1.0 / 3.0 if curved[k] else 0.0
+            w[j] = 1.0 if valid[k, j] else 0.0
+            obs[j] = s[k, j] if valid[k, j] else 0.0
+        c = np.zeros(3)
         for _ in range(iterations):
-            N, rhs = normal_equations(A, w, s, pad)
-            coef = np.linalg.solve(N, rhs)[..., 0]
-            res = s - np.matmul(A, coef[..., None])[..., 0]
-            scale = np.maximum(1.4826 * _masked_median(np.abs(res), w > 0), min_sigma_px)
-            w = (valid & (np.abs(res) <= reject_sigmas * scale[:, None])).astype(np.float64)
-        count = w.sum(axis=1)
-        dof = np.maximum(count - self.order, 1.0)
-        var = (w * res * res).sum(axis=1) / dof
-        N, _ = normal_equations(A, w, s, pad)
-        self.coef = coef
-        self.cov = np.linalg.inv(N) * var[:, None, None]
-        self.cov[:, 2, 2] *= (self.order >= 3)
-        self.count = count.astype(np.intp)
+            _weighted_normal(A, w, obs, curved[k], N, rhs)
+            c = solve(N, rhs)[:, 0]
+            m = 0
+            for j in range(K):
+                res[j] = obs[j] - (A[j, 0] * c[0] + A[j, 1] * c[1] + A[j, 2] * c[2])
+                if w[j] > 0:
+                    buf[m] = abs(res[j])
+                    m += 1
+            # robust sigma from the median absolute residual (the upper middle value)
+            med = np.sort(buf[:m])[m // 2] if m > 0 else 0.0
+            scale = max(1.4826 * med, min_sigma)
+            for j in range(K):
+                w[j] = 1.0 if (valid[k, j] and abs(res[j]) <= reject * scale) else 0.0
+        n_used = 0.0
+        sq = 0.0
+        for j in range(K):
+            n_used += w[j]
+            sq += w[j] * res[j] * res[j]
+        var = sq / max(n_used - (3.0 if curved[k] else 2.0), 1.0)
+        _weighted_normal(A, w, obs, curved[k], N, rhs)
+        inv = solve(N, np.eye(3))
+        for p in range(3):
+            coef[k, p] = c[p]
+            for q in range(3):
+                cov[k, p, q] = inv[p, q] * var
+        if not curved[k]:
+            cov[k, 2, 2] = 0.0
+        count[k] = int(n_used)
+    return coef, cov, count
 
 
-def _masked_median(x: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Per-row median of x (S, K) over mask (S, K); 0 for empty rows."""
-    srt = np.sort(np.where(mask, x, np.inf), axis=1)
-    count = mask.sum(axis=1)
-    mid = np.take_along_axis(srt, np.maximum(count // 2, 0)[:, None], 1)[:, 0]
-    return np.where(count > 0, mid, 0.0)
+@njit(cache=True, error_model="numpy", inline="always")
+def _weighted_normal(A: np.ndarray, w: np.ndarray, obs: np.ndarray, curved: bool,
+                     N: np.ndarray, rhs: np.ndarray) -> None:
+    """N (3, 3) = A^T W A (+ an identity row for an unused parabola term, + a tiny ridge),
+    rhs (3, 1) = A^T W obs, for one side's rows A (K, 3), weights w (K,), observations (K,)."""
+    N[:] = 0.0
+    rhs[:] = 0.0
+    for j in range(len(w)):
+        if w[j] == 0.0:
+            continue
+        for p in range(3):
+            rhs[p, 0] += A[j, p] * w[j] * obs[j]
+            for q in range(3):
+                N[p, q] += A[j, p] * w[j] * A[j, q]
+    if not curved:
+        N[2, 2] += 1.0
+    for p in range(3):
+        N[p, p] += 1e-9
 
 
 def intersect_sides(model: SideModel, a: np.ndarray, u: np.ndarray, n: np.ndarray,

@@ -29,6 +29,8 @@ import math
 import numpy as np
 from numba import njit
 
+from artcal_ros.core.detect.linalg import solve
+
 # A&S 7.1.26 coefficients of erfc (absolute error < 1.5e-7)
 _P = 0.3275911
 _A1, _A2, _A3, _A4, _A5 = 0.254829592, -0.284496736, 1.421413741, -1.453152027, 1.061405429
@@ -103,42 +105,6 @@ def pixel_esf(d: float, sigma: float, box_a: float, box_b: float
     sig2 = sigma * sigma / (a * b)
     # d/d log sigma of sigma^2 P2(c / sigma): 2 sigma^2 P2 - sigma c P1 = sigma^2 (2 P2 - z P1)
     return s2 * sig2, s1 * sigma / (a * b), (2.0 * s2 - sz1) * sig2
-
-
-@njit(cache=True, error_model="numpy")
-def _solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
-    """x with A x = b for a small square A (n, n) and b (n, k): LU with partial pivoting.
-
-    A singular system gives non-finite entries (the caller treats them as no step).
-    """
-    n = A.shape[0]
-    M = A.copy()
-    x = b.copy()
-    for c in range(n):
-        piv = c
-        for r in range(c + 1, n):
-            if abs(M[r, c]) > abs(M[piv, c]):
-                piv = r
-        if piv != c:
-            for j in range(n):
-                M[c, j], M[piv, j] = M[piv, j], M[c, j]
-            for j in range(x.shape[1]):
-                x[c, j], x[piv, j] = x[piv, j], x[c, j]
-        inv = 1.0 / M[c, c]
-        for r in range(c + 1, n):
-            f = M[r, c] * inv
-            if f != 0.0:
-                for j in range(c, n):
-                    M[r, j] -= f * M[c, j]
-                for j in range(x.shape[1]):
-                    x[r, j] -= f * x[c, j]
-    for c in range(n - 1, -1, -1):
-        for j in range(x.shape[1]):
-            acc = x[c, j]
-            for k in range(c + 1, n):
-                acc -= M[c, k] * x[k, j]
-            x[c, j] = acc / M[c, c]
-    return x
 
 
 @njit(cache=True, error_model="numpy")
@@ -290,7 +256,7 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
             for j in range(6):
                 Nd[j, j] += lam * (Nd[j, j] + 1e-9)
                 rhs[j, 0] = g[j]
-            step = _solve(Nd, rhs)[:, 0]
+            step = solve(Nd, rhs)[:, 0]
             for j in range(6):
                 if not np.isfinite(step[j]):
                     step[j] = 0.0
@@ -318,7 +284,7 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
         Nd[2, 2] += 1.0 - quad
         for j in range(6):
             Nd[j, j] += 1e-12
-        inv = _solve(Nd, np.eye(6)[:, :3].copy())
+        inv = solve(Nd, np.eye(6)[:, :3].copy())
         var = cost / max(hi - lo - 6.0, 1.0) * cov_scale
         for a in range(3):
             for b in range(3):
@@ -394,14 +360,15 @@ def _far_cells(along: np.ndarray, same: np.ndarray, blur_modules: np.ndarray) ->
     out = np.empty(len(along))
     for i in range(len(along)):
         w = max(blur_modules[i], 1e-3)
-        # CDF at each cell boundary once; cell j spans boundaries j+1 .. j+2
-        left = norm_cdf_pdf((along[i] - 1.0) / w)[0]
+        # sum over cells j of other_j (Phi(x - (j+1)) - Phi(x - (j+2))), regrouped by
+        # boundary: only the boundaries where the colour changes need a CDF
         acc = 0.0
-        for j in range(bits):
-            right = norm_cdf_pdf((along[i] - (j + 2)) / w)[0]
-            if not same[i, j]:
-                acc += left - right
-            left = right
+        before = 0.0  # the border itself: its own colour
+        for j in range(bits + 1):
+            other = 0.0 if j == bits or same[i, j] else 1.0
+            if other != before:
+                acc += (other - before) * norm_cdf_pdf((along[i] - (j + 1)) / w)[0]
+                before = other
         out[i] = acc
     return out
 
