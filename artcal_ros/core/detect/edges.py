@@ -298,11 +298,10 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         # the model sees raw pixel values (interpolation would add its own, phase-
         # dependent edge shifts)
         span = (-int(np.ceil(inner.max())), int(np.ceil(outer.max())))
-        samples, sid, used = gather_samples(lin, a, u, n, t, present, model.coef, model.length,
-                                            model.order >= 3, span, inner, outer,
-                                            _neighbour_lines(corners), corner_clear)
-        px_c, py_c, t_c, s_c, values = samples
-        basis = model.basis_at(t_c, sid)
+        samples, basis, sid, used = gather_samples(
+            lin, a, u, n, t, present, model.coef, model.length, model.order >= 3, span, inner,
+            outer, _neighbour_lines(corners), corner_clear)
+        px_c, py_c, _, s_c, values = samples
         along, m_s = module_geometry_at(corners, np.stack([px_c, py_c], axis=-1), sid, n,
                                         bits, lens)
         if rows:

@@ -108,74 +108,98 @@ def coarse_offsets(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
+def _side_samples(s: int, lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
+                  t: np.ndarray, present: np.ndarray, coef: np.ndarray, length: np.ndarray,
+                  curved: np.ndarray, first: int, last: int, inner: np.ndarray,
+                  outer: np.ndarray, p0: np.ndarray, nin: np.ndarray, clear: float,
+                  out: np.ndarray, basis: np.ndarray, m0: int, write: bool) -> tuple[int, int]:
+    """Side s's samples, written from m0 on when ``write``; returns (samples, profiles used)."""
+    h, w = lin.shape
+    c0, c1, c2 = coef[s, 0], coef[s, 1], coef[s, 2] if curved[s] else 0.0
+    L = length[s]
+    lo_j = max(first, -math.ceil(inner[s]) - 1)
+    hi_j = min(last, math.ceil(outer[s]) + 1)
+    m = m0
+    used = 0
+    for k in range(t.shape[1]):
+        if not present[s, k]:
+            continue
+        tau = 2.0 * t[s, k] / L - 1.0
+        s0 = c0 + c1 * tau + c2 * (tau * tau - 1.0 / 3.0)
+        bx = a[s, 0] + t[s, k] * u[s, 0] + s0 * n[s, 0]
+        by = a[s, 1] + t[s, k] * u[s, 1] + s0 * n[s, 1]
+        before = m
+        for j in range(lo_j, hi_j + 1):
+            x = bx + j * n[s, 0]
+            y = by + j * n[s, 1]
+            if not (-0.5 < x < w - 0.5 and -0.5 < y < h - 0.5):
+                continue
+            # the pixel nearest the grid point: the model sees raw pixel values
+            px = min(max(np.rint(x), 0.0), w - 1.0)
+            py = min(max(np.rint(y), 0.0), h - 1.0)
+            rx = px - a[s, 0]
+            ry = py - a[s, 1]
+            ts = rx * u[s, 0] + ry * u[s, 1]
+            ss = rx * n[s, 0] + ry * n[s, 1]
+            tau_s = 2.0 * ts / L - 1.0
+            quad = tau_s * tau_s - 1.0 / 3.0 if curved[s] else 0.0
+            rel = ss - (c0 + c1 * tau_s + c2 * quad)
+            if rel < -inner[s] or rel > outer[s]:
+                continue
+            if rel < 0.0:
+                # inside the border: clear of both neighbouring sides
+                ok = True
+                for q in range(2):
+                    dist = ((px - p0[s, q, 0]) * nin[s, q, 0]
+                            + (py - p0[s, q, 1]) * nin[s, q, 1])
+                    ok &= dist >= clear
+                if not ok:
+                    continue
+            if write:
+                out[0, m] = px
+                out[1, m] = py
+                out[2, m] = ts
+                out[3, m] = ss
+                out[4, m] = lin[int(py), int(px)]
+                basis[m, 0] = 1.0
+                basis[m, 1] = tau_s
+                basis[m, 2] = quad
+            m += 1
+        if m > before:
+            used += 1
+    return m - m0, used
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
 def _gather_kernel(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
                    t: np.ndarray, present: np.ndarray, coef: np.ndarray, length: np.ndarray,
                    curved: np.ndarray, first: int, last: int, inner: np.ndarray,
                    outer: np.ndarray, p0: np.ndarray, nin: np.ndarray, clear: float
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """See :func:`gather_samples`; returns a padded (S, K * J, 5) buffer, counts and profiles."""
-    S, K = t.shape
-    h, w = lin.shape
-    J = last - first + 1
-    buf = np.empty((S, K * J, 5))
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """See :func:`gather_samples`: counted first, then written into arrays of that size."""
+    S = t.shape[0]
     count = np.zeros(S, np.intp)
     used = np.zeros(S, np.intp)
+    none = np.empty((5, 0))
     for s in range(S):
-        c0, c1, c2 = coef[s, 0], coef[s, 1], coef[s, 2] if curved[s] else 0.0
-        L = length[s]
-        lo_j = max(first, -math.ceil(inner[s]) - 1)
-        hi_j = min(last, math.ceil(outer[s]) + 1)
-        m = 0
-        for k in range(K):
-            if not present[s, k]:
-                continue
-            tau = 2.0 * t[s, k] / L - 1.0
-            s0 = c0 + c1 * tau + c2 * (tau * tau - 1.0 / 3.0)
-            bx = a[s, 0] + t[s, k] * u[s, 0] + s0 * n[s, 0]
-            by = a[s, 1] + t[s, k] * u[s, 1] + s0 * n[s, 1]
-            before = m
-            for j in range(lo_j, hi_j + 1):
-                x = bx + j * n[s, 0]
-                y = by + j * n[s, 1]
-                if not (-0.5 < x < w - 0.5 and -0.5 < y < h - 0.5):
-                    continue
-                # the pixel nearest the grid point: the model sees raw pixel values
-                px = min(max(np.rint(x), 0.0), w - 1.0)
-                py = min(max(np.rint(y), 0.0), h - 1.0)
-                rx = px - a[s, 0]
-                ry = py - a[s, 1]
-                ts = rx * u[s, 0] + ry * u[s, 1]
-                ss = rx * n[s, 0] + ry * n[s, 1]
-                tau_s = 2.0 * ts / L - 1.0
-                rel = ss - (c0 + c1 * tau_s + c2 * (tau_s * tau_s - 1.0 / 3.0))
-                if rel < -inner[s] or rel > outer[s]:
-                    continue
-                if rel < 0.0:
-                    # inside the border: clear of both neighbouring sides
-                    ok = True
-                    for q in range(2):
-                        dist = ((px - p0[s, q, 0]) * nin[s, q, 0]
-                                + (py - p0[s, q, 1]) * nin[s, q, 1])
-                        ok &= dist >= clear
-                    if not ok:
-                        continue
-                buf[s, m, 0] = px
-                buf[s, m, 1] = py
-                buf[s, m, 2] = ts
-                buf[s, m, 3] = ss
-                buf[s, m, 4] = lin[int(py), int(px)]
-                m += 1
-            if m > before:
-                used[s] += 1
-        count[s] = m
-    return buf, count, used
+        count[s], used[s] = _side_samples(s, lin, a, u, n, t, present, coef, length, curved,
+                                          first, last, inner, outer, p0, nin, clear,
+                                          none, np.empty((0, 3)), 0, False)
+    out = np.empty((5, count.sum()))
+    basis = np.empty((count.sum(), 3))
+    m = 0
+    for s in range(S):
+        _side_samples(s, lin, a, u, n, t, present, coef, length, curved, first, last, inner,
+                      outer, p0, nin, clear, out, basis, m, True)
+        m += count[s]
+    return out, basis, count, used
 
 
 def gather_samples(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
                    t: np.ndarray, present: np.ndarray, coef: np.ndarray, length: np.ndarray,
                    curved: np.ndarray, offsets: tuple[int, int], inner: np.ndarray,
                    outer: np.ndarray, neighbours: tuple[np.ndarray, np.ndarray], clear: float
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """The pixels the step model is fitted to, flat and grouped by side.
 
     For every profile (a point ``a + t u + e(t) n`` on the current edge curve) the
@@ -198,11 +222,13 @@ def gather_samples(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
 
     Returns:
         samples (5, N): x, y (the pixel), t, s (its along-side and normal
-        coordinates, pixels) and its value; side (N,) int, non-decreasing;
+        coordinates, pixels) and its value; basis (N, 3), the edge polynomial's basis
+        (1, tau, tau^2 - 1/3, the last 0 where not curved) at each; side (N,) int,
+        non-decreasing;
         profiles (S,) int, the profiles with at least one sample.
     """
     f64 = np.float64
-    buf, count, used = _gather_kernel(
+    out, basis, count, used = _gather_kernel(
         lin, np.ascontiguousarray(a, f64), np.ascontiguousarray(u, f64),
         np.ascontiguousarray(n, f64), np.ascontiguousarray(t, f64),
         np.ascontiguousarray(present, bool), np.ascontiguousarray(coef, f64),
@@ -210,17 +236,4 @@ def gather_samples(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
         int(offsets[0]), int(offsets[1]), np.ascontiguousarray(inner, f64),
         np.ascontiguousarray(outer, f64), np.ascontiguousarray(neighbours[0], f64),
         np.ascontiguousarray(neighbours[1], f64), float(clear))
-    return _flatten(buf, count), np.repeat(np.arange(len(a)), count), used
-
-
-@njit(cache=True, error_model="numpy")
-def _flatten(buf: np.ndarray, count: np.ndarray) -> np.ndarray:
-    """(5, N) rows x, y, t, s, value of the first count[s] samples of every side's buffer."""
-    out = np.empty((buf.shape[2], count.sum()))
-    m = 0
-    for s in range(len(count)):
-        for i in range(count[s]):
-            for c in range(buf.shape[2]):
-                out[c, m] = buf[s, i, c]
-            m += 1
-    return out
+    return out, basis, np.repeat(np.arange(len(a)), count), used

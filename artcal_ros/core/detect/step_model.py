@@ -165,6 +165,16 @@ def _normal_equations(p: np.ndarray, lo: int, hi: int, values: np.ndarray, s: np
             de += c * (pdf / w_eff)
             gw -= c * (pdf * z * shrink)
         res = values[i] - (p[3] + D * F)
+        cost += res * res
+        if de == 0.0 and gw == 0.0:
+            # every edge's tail is flat here (most of a sharp edge's band): only the
+            # levels A and D see this sample
+            r3 += res
+            r4 += F * res
+            n33 += 1.0
+            n43 += F
+            n44 += F * F
+            continue
         de *= D
         # the Jacobian row: d/d (c0, c1, c2, A, D, log w)
         j0 = de * basis[i, 0]
@@ -179,7 +189,6 @@ def _normal_equations(p: np.ndarray, lo: int, hi: int, values: np.ndarray, s: np
         r3 += j3 * res
         r4 += j4 * res
         r5 += j5 * res
-        cost += res * res
         n00 += j0 * j0
         n10 += j1 * j0
         n11 += j1 * j1
