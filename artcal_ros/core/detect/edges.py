@@ -42,9 +42,13 @@ from artcal_ros.core.homography import shortest_sides
 __all__ = ["EdgeFit", "refine_quads", "same_edges"]
 
 _STEP = 0.25  # profile sample spacing, pixels
-FIT_ITERATIONS = 4
-FIT_ITERATIONS_WARM = 4
-FIT_TOL_PX = 3e-4
+# the blurred-step fit: Gauss-Newton steps of a side that starts from its frame's blur,
+# and the edge movement below which a side stops early, pixels
+_FIT_STEPS = 4
+_FIT_TOL_PX = 3e-4
+# one side in _PILOT_EVERY, fitted first (_PILOT_STEPS steps from 0.6 px), gives that blur
+_PILOT_EVERY = 8
+_PILOT_STEPS = 8
 
 
 @dataclass(frozen=True)
@@ -261,7 +265,8 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         fit_order: (S,) see above.
         lens: optional lens (places the code cells along each side).
         corner_clear: see above, pixels.
-        start_blur: (S,) the blur the model fit starts from (an earlier pass's), pixels.
+        start_blur: (S,) the blur the model fit starts from (an earlier pass's), pixels;
+            without, the frame's blur from a pilot fit of every 8th side.
 
     Returns:
         (S,) the fitted blur, pixels.
@@ -269,7 +274,7 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
     S = t.shape[0]
     M = S // 4
     blur = np.full(S, 0.8)  # along the side, for the code cells
-    fit_blur = np.full(S, 0.6) if start_blur is None else start_blur
+    fit_blur = start_blur
     for _ in range(max(passes, 1)):
         corners, _ = intersect_sides(model, a, u, n, M)
         bad = ~np.isfinite(corners).all(axis=(1, 2))
@@ -311,12 +316,20 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
                             for r in range(rows)], axis=-1)
         else:
             far = np.zeros((len(sid), 1), dtype=np.float32)
-        coef, cov, fit_blur = fit_step_model(
-            values, s_c, sid, S, basis, model.coef, far, m_s, fit_order, n,
-            outer=None if known is None else known[sid].astype(np.float32),
-            quiet_px=None if known is None else quiet_modules * m_s, blur0=fit_blur,
-            tol_px=FIT_TOL_PX,
-            iterations=FIT_ITERATIONS if start_blur is None else FIT_ITERATIONS_WARM)
+        fit_args = (values, s_c, sid, S, basis, model.coef, far, m_s, fit_order, n)
+        fit_kw = {"outer": None if known is None else known[sid].astype(np.float32),
+                  "quiet_px": None if known is None else quiet_modules * m_s,
+                  "tol_px": _FIT_TOL_PX}
+        if fit_blur is None:
+            # the frame's blur from a few sides first: the others then start close to
+            # theirs (blur hardly varies across a frame; 0.6 px is far from a sharp
+            # edge's 0.03) and need a few steps, not 5 - 8
+            few = np.flatnonzero(used > 0)[::_PILOT_EVERY]
+            _, _, pilot = fit_step_model(*fit_args, **fit_kw, blur0=np.full(S, 0.6),
+                                         sides=few, iterations=_PILOT_STEPS)
+            fit_blur = np.full(S, float(np.median(pilot[few])) if len(few) else 0.6)
+        coef, cov, fit_blur = fit_step_model(*fit_args, **fit_kw, blur0=fit_blur,
+                                             iterations=_FIT_STEPS)
         blur = fit_blur
         model.coef = coef
         model.cov = cov

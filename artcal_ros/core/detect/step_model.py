@@ -25,6 +25,8 @@ one by one by damped Gauss-Newton (a compiled kernel).
 from __future__ import annotations
 
 import math
+import os
+from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numba import njit
@@ -226,15 +228,14 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
                coef0: np.ndarray, far: np.ndarray, module_px: np.ndarray,
                fit_order: np.ndarray, normal: np.ndarray, outer: np.ndarray,
                quiet_px: np.ndarray, cov_scale: float, iterations: int, blur0: np.ndarray,
-               w_clip: float, tol_px: float
-               ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """Damped Gauss-Newton fit of every side, one after the other; see :func:`fit_step_model`."""
-    S = len(starts) - 1
-    coef = np.empty((S, 3))
-    cov = np.zeros((S, 3, 3))
-    blur = np.empty(S)
-    evals = np.zeros(S, np.intp)
-    for k in range(S):
+               tol_px: float, which: np.ndarray, coef: np.ndarray, cov: np.ndarray,
+               blur: np.ndarray) -> None:
+    """Damped Gauss-Newton fit of the sides ``which``; see :func:`fit_step_model`.
+
+    Writes rows ``which`` of coef (S, 3), cov (S, 3, 3) and blur (S,) (and nothing
+    else, so threads can share them).
+    """
+    for k in which:
         lo, hi = starts[k], starts[k + 1]
         quad = 1.0 if fit_order[k] >= 3 else 0.0
         box_a, box_b = abs(normal[k, 0]), abs(normal[k, 1])
@@ -258,7 +259,6 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
         lam = 1e-3
         Nd = np.empty((6, 6))
         rhs = np.empty((6, 1))
-        evals[k] = 1
         for _ in range(iterations):
             Nd[:] = N
             Nd[2, 2] += 1.0 - quad  # a held parabola term: an identity row
@@ -271,14 +271,13 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
                     step[j] = 0.0
             step[0] = min(max(step[0], -1.0), 1.0)
             step[1] = min(max(step[1], -1.0), 1.0)
-            step[5] = min(max(step[5], -w_clip), w_clip)
+            step[5] = min(max(step[5], -0.5), 0.5)
             trial = p + step
             # below 0.03 px the model does not see the blur any more
             trial[5] = max(trial[5], math.log(0.03))
             moved = abs(step[0]) + abs(step[1]) + abs(step[2])
             if moved < tol_px and abs(trial[5] - p[5]) < 0.02:
                 break
-            evals[k] += 1
             cost_t = _normal_equations(trial, lo, hi, values, s, basis, far, module_px,
                                        outer, quiet_px, box_a, box_b, quad, Nt, gt)
             if cost_t < cost:
@@ -299,12 +298,10 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
             for b in range(3):
                 v = inv[a, b] * var
                 cov[k, a, b] = v if np.isfinite(v) else 0.0
-        if quad == 0.0:
-            cov[k, 2, :] = 0.0
-            cov[k, :, 2] = 0.0
+                if quad == 0.0 and (a == 2 or b == 2):
+                    cov[k, a, b] = 0.0
         coef[k] = p[:3]
         blur[k] = math.exp(p[5])
-    return coef, cov, blur, evals
 
 
 def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides: int,
@@ -312,8 +309,8 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
                    module_px: np.ndarray, fit_order: np.ndarray, normal: np.ndarray, *,
                    outer: np.ndarray | None = None, quiet_px: np.ndarray | None = None,
                    samples_per_px: float = 1.0, iterations: int = 4,
-                   blur0: np.ndarray | None = None, w_clip: float = 0.5, tol_px: float = 0.0,
-                   stats: list | None = None
+                   blur0: np.ndarray | None = None, tol_px: float = 0.0,
+                   sides: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fit the blurred-step model (module docstring) to every side.
 
@@ -338,7 +335,12 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
         quiet_px: (N,) the quiet zone's width at each sample, pixels (with ``outer``).
         samples_per_px: sample density along the normal (for the covariance: samples
             closer than a pixel are not independent).
-        iterations: Gauss-Newton steps.
+        iterations: most Gauss-Newton steps.
+        blur0: (S,) the blur to start from, pixels (0.6 px without).
+        tol_px: a side stops early once a step moves its edge by less than this (and
+            its log blur by less than 0.02), pixels.
+        sides: optional (F,) int, the sides to fit (the others keep ``coef0``, ``blur0``
+            and a zero covariance).
 
     Returns:
         coef (S, 3) edge polynomial, cov (S, 3, 3) its covariance, blur (S,) pixels
@@ -347,19 +349,57 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
     starts = np.searchsorted(np.asarray(side), np.arange(n_sides + 1)).astype(np.intp)
     f64 = np.float64
     none = np.zeros(0)
-    b0 = np.full(n_sides, 0.6) if blur0 is None else np.ascontiguousarray(blur0, f64)
-    out = _fit_sides(np.ascontiguousarray(values, f64), np.ascontiguousarray(s, f64), starts,
-                      np.ascontiguousarray(basis, f64), np.ascontiguousarray(coef0, f64),
-                      np.ascontiguousarray(far, f64), np.ascontiguousarray(module_px, f64),
-                      np.ascontiguousarray(fit_order, np.intp),
-                      np.ascontiguousarray(normal, f64),
-                      none if outer is None else np.ascontiguousarray(outer, f64),
-                      none if quiet_px is None else np.ascontiguousarray(quiet_px, f64),
-                      max(samples_per_px, 1.0), int(iterations), b0, float(w_clip),
-                      float(tol_px))
-    if stats is not None:
-        stats.append(out[3])
-    return out[0], out[1], out[2]
+    which = np.arange(n_sides) if sides is None else np.asarray(sides, np.intp)
+    # sides not fitted keep their start
+    coef = np.array(coef0, dtype=f64)
+    cov = np.zeros((n_sides, 3, 3))
+    blur = np.full(n_sides, 0.6) if blur0 is None else np.array(blur0, dtype=f64)
+    args = (np.ascontiguousarray(values, f64), np.ascontiguousarray(s, f64), starts,
+            np.ascontiguousarray(basis, f64), coef.copy(),
+            np.ascontiguousarray(far, f64), np.ascontiguousarray(module_px, f64),
+            np.ascontiguousarray(fit_order, np.intp), np.ascontiguousarray(normal, f64),
+            none if outer is None else np.ascontiguousarray(outer, f64),
+            none if quiet_px is None else np.ascontiguousarray(quiet_px, f64),
+            max(samples_per_px, 1.0), int(iterations), blur.copy(), float(tol_px))
+    chunks = _chunks(which, starts)
+    if len(chunks) == 1:
+        _fit_sides(*args, which, coef, cov, blur)
+    else:
+        list(_pool().map(lambda part: _fit_sides(*args, part, coef, cov, blur), chunks))
+    return coef, cov, blur
+
+
+def threads() -> int:
+    """Threads the model fit may use: ``ARTCAL_THREADS``, else 2 (at most the CPU count)."""
+    env = os.environ.get("ARTCAL_THREADS", "")
+    return max(1, int(env) if env.isdigit() else min(2, os.cpu_count() or 1))
+
+
+_POOLS: dict[int, ThreadPoolExecutor] = {}
+_MIN_CHUNK = 20_000  # samples; below this a thread costs more than it saves
+
+
+def _pool() -> ThreadPoolExecutor:
+    """The fit's worker threads (made on first use)."""
+    n = threads()
+    if n not in _POOLS:
+        _POOLS[n] = ThreadPoolExecutor(n, thread_name_prefix="artcal-fit")
+    return _POOLS[n]
+
+
+def _chunks(which: np.ndarray, starts: np.ndarray) -> list[np.ndarray]:
+    """The sides ``which`` in runs of about equal sample counts, 4 per thread.
+
+    More runs than threads: a thread that the OS puts aside (a busy machine) holds
+    up only its current run while the others take the rest.
+    """
+    n = starts[which + 1] - starts[which]
+    total = int(n.sum())
+    parts = min(4 * threads(), total // _MIN_CHUNK) if threads() > 1 else 1
+    if parts <= 1:
+        return [which]
+    cut = np.searchsorted(np.cumsum(n), np.arange(1, parts) * total / parts)
+    return [c for c in np.split(which, cut) if len(c)]
 
 
 @njit(cache=True, error_model="numpy")
