@@ -112,8 +112,8 @@ def _side_samples(s: int, lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.n
                   t: np.ndarray, present: np.ndarray, coef: np.ndarray, length: np.ndarray,
                   curved: np.ndarray, first: int, last: int, inner: np.ndarray,
                   outer: np.ndarray, p0: np.ndarray, nin: np.ndarray, clear: float,
-                  out: np.ndarray, basis: np.ndarray, m0: int) -> tuple[int, int]:
-    """Side s's samples, written from m0 on; returns (samples, profiles used)."""
+                  out: np.ndarray, basis: np.ndarray, m0: int, write: bool) -> tuple[int, int]:
+    """Side s's samples, written from m0 on when ``write``; returns (samples, profiles used)."""
     h, w = lin.shape
     c0, c1, c2 = coef[s, 0], coef[s, 1], coef[s, 2] if curved[s] else 0.0
     L = length[s]
@@ -155,14 +155,15 @@ def _side_samples(s: int, lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.n
                     ok &= dist >= clear
                 if not ok:
                     continue
-            out[0, m] = px
-            out[1, m] = py
-            out[2, m] = ts
-            out[3, m] = ss
-            out[4, m] = lin[int(py), int(px)]
-            basis[m, 0] = 1.0
-            basis[m, 1] = tau_s
-            basis[m, 2] = quad
+            if write:
+                out[0, m] = px
+                out[1, m] = py
+                out[2, m] = ts
+                out[3, m] = ss
+                out[4, m] = lin[int(py), int(px)]
+                basis[m, 0] = 1.0
+                basis[m, 1] = tau_s
+                basis[m, 2] = quad
             m += 1
         if m > before:
             used += 1
@@ -175,27 +176,21 @@ def _gather_kernel(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
                    curved: np.ndarray, first: int, last: int, inner: np.ndarray,
                    outer: np.ndarray, p0: np.ndarray, nin: np.ndarray, clear: float
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """See :func:`gather_samples`: each side written at its upper bound's offset, then packed."""
+    """See :func:`gather_samples`: counted first, then written into arrays of that size."""
     S = t.shape[0]
     count = np.zeros(S, np.intp)
     used = np.zeros(S, np.intp)
-    start = np.zeros(S + 1, np.intp)
-    for s in range(S):
-        # at most every offset of every profile
-        span = min(last, math.ceil(outer[s]) + 1) - max(first, -math.ceil(inner[s]) - 1) + 1
-        start[s + 1] = start[s] + present[s].sum() * max(span, 0)
-    buf = np.empty((5, start[S]))
-    buf_basis = np.empty((start[S], 3))
+    none = np.empty((5, 0))
     for s in range(S):
         count[s], used[s] = _side_samples(s, lin, a, u, n, t, present, coef, length, curved,
                                           first, last, inner, outer, p0, nin, clear,
-                                          buf, buf_basis, start[s])
+                                          none, np.empty((0, 3)), 0, False)
     out = np.empty((5, count.sum()))
     basis = np.empty((count.sum(), 3))
     m = 0
     for s in range(S):
-        out[:, m:m + count[s]] = buf[:, start[s]:start[s] + count[s]]
-        basis[m:m + count[s]] = buf_basis[start[s]:start[s] + count[s]]
+        _side_samples(s, lin, a, u, n, t, present, coef, length, curved, first, last, inner,
+                      outer, p0, nin, clear, out, basis, m, True)
         m += count[s]
     return out, basis, count, used
 
