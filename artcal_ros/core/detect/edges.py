@@ -24,10 +24,12 @@ corner k is the intersection of sides k-1 and k.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from artcal_ros.core.detect.lens import Lens, LensPool
+from artcal_ros.core.detect.linalg import nanmedian_rows
 from artcal_ros.core.detect.plumb import estimate_division, lens_bend
 from artcal_ros.core.detect.profiles import coarse_offsets, gather_samples
 from artcal_ros.core.detect.sides import (
@@ -36,7 +38,7 @@ from artcal_ros.core.detect.sides import (
     module_geometry_at,
     side_frames,
 )
-from artcal_ros.core.detect.step_model import far_cells, fit_step_model, side_median, side_slots
+from artcal_ros.core.detect.step_model import far_cells, fit_step_model
 from artcal_ros.core.homography import shortest_sides
 
 __all__ = ["EdgeFit", "refine_quads", "same_edges"]
@@ -284,10 +286,7 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         _, m_px = module_geometry_at(corners, base.reshape(-1, 2),
                                      np.repeat(np.arange(S), base.shape[1]), n, bits)
         m_px = m_px.reshape(base.shape[:2])
-        psid = np.nonzero(present)[0]
-        pslot, pP = side_slots(psid, S)
-        m_med = np.nan_to_num(side_median(m_px[present], np.ones(len(psid), bool), psid,
-                                          pslot, S, pP), nan=1.0)
+        m_med = np.nan_to_num(nanmedian_rows(np.where(present, m_px, np.nan)), nan=1.0)
         rows = 0 if inner_same is None else int(np.shape(inner_same)[2])
         if rows == 0:
             inner = np.clip(m_med - 1.0, 1.0, 5.0)
@@ -316,24 +315,23 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
                             for r in range(rows)], axis=-1)
         else:
             far = np.zeros((len(sid), 1), dtype=np.float32)
-        fit_args = (values, s_c, sid, S, basis, model.coef, far, m_s, fit_order, n)
-        fit_kw = {"outer": None if known is None else known[sid].astype(np.float32),
-                  "quiet_px": None if known is None else quiet_modules * m_s,
-                  "tol_px": _FIT_TOL_PX}
+        fit = partial(fit_step_model, values, s_c, sid, S, basis, model.coef, far, m_s,
+                      fit_order, n, tol_px=_FIT_TOL_PX,
+                      outer=None if known is None else known[sid].astype(np.float32),
+                      quiet_px=None if known is None else quiet_modules * m_s)
         if fit_blur is None:
             # the frame's blur from a few sides first: the others then start close to
             # theirs (blur hardly varies across a frame; 0.6 px is far from a sharp
             # edge's 0.03) and need a few steps, not 5 - 8
             few = np.flatnonzero(used > 0)[::_PILOT_EVERY]
-            _, _, pilot = fit_step_model(*fit_args, **fit_kw, blur0=np.full(S, 0.6),
-                                         sides=few, iterations=_PILOT_STEPS)
+            pilot = fit(blur0=np.full(S, 0.6), iterations=_PILOT_STEPS, sides=few)[2]
             fit_blur = np.full(S, float(np.median(pilot[few])) if len(few) else 0.6)
-        coef, cov, fit_blur = fit_step_model(*fit_args, **fit_kw, blur0=fit_blur,
-                                             iterations=_FIT_STEPS)
+        coef, cov, fit_blur = fit(blur0=fit_blur, iterations=_FIT_STEPS)
         blur = fit_blur
         model.coef = coef
         model.cov = cov
         model.count = used
+    assert fit_blur is not None  # passes >= 1
     return fit_blur
 
 

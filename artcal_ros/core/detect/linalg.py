@@ -1,11 +1,12 @@
-"""Small dense linear algebra for the compiled kernels (numba has no LAPACK without SciPy)."""
+"""Small numerics: a dense solve for the compiled kernels (numba has no LAPACK without
+SciPy), and row medians over a mask."""
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-__all__ = ["solve"]
+__all__ = ["nanmedian_rows", "solve"]
 
 
 @njit(cache=True, error_model="numpy")
@@ -42,3 +43,16 @@ def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
                 acc -= M[c, k] * x[k, j]
             x[c, j] = acc / M[c, c]
     return x
+
+
+def nanmedian_rows(x: np.ndarray) -> np.ndarray:
+    """(M,) median of each row of x (M, P) over its non-NaN entries; NaN for none.
+
+    As ``np.nanmedian(x, axis=1)`` (the mean of the two middle values for an even
+    count), without its masked-array overhead on small rows.
+    """
+    srt = np.sort(x, axis=1)  # NaN sorts last
+    count = (~np.isnan(x)).sum(axis=1)
+    lo = np.take_along_axis(srt, np.maximum((count - 1) // 2, 0)[:, None], 1)[:, 0]
+    hi = np.take_along_axis(srt, np.maximum(count // 2, 0)[:, None], 1)[:, 0]
+    return np.where(count > 0, 0.5 * (lo + hi), np.nan)

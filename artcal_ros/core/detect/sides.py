@@ -136,7 +136,7 @@ def _robust_fit(t: np.ndarray, s: np.ndarray, valid: np.ndarray, length: np.ndar
             A[j, 2] = tau * tau - 1.0 / 3.0 if curved[k] else 0.0
             w[j] = 1.0 if valid[k, j] else 0.0
             obs[j] = s[k, j] if valid[k, j] else 0.0
-        c = np.zeros(3)
+        c: np.ndarray = np.zeros(3)
         for _ in range(iterations):
             _weighted_normal(A, w, obs, curved[k], N, rhs)
             c = solve(N, rhs)[:, 0]

@@ -25,13 +25,12 @@ one by one by damped Gauss-Newton (a compiled kernel).
 from __future__ import annotations
 
 import math
-import os
-from concurrent.futures import ThreadPoolExecutor
 
 import numpy as np
 from numba import njit
 
 from artcal_ros.core.detect.linalg import solve
+from artcal_ros.core.detect.workers import run_all, split_even
 
 # A&S 7.1.26 coefficients of erfc (absolute error < 1.5e-7)
 _P = 0.3275911
@@ -361,45 +360,10 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
             none if outer is None else np.ascontiguousarray(outer, f64),
             none if quiet_px is None else np.ascontiguousarray(quiet_px, f64),
             max(samples_per_px, 1.0), int(iterations), blur.copy(), float(tol_px))
-    chunks = _chunks(which, starts)
-    if len(chunks) == 1:
-        _fit_sides(*args, which, coef, cov, blur)
-    else:
-        list(_pool().map(lambda part: _fit_sides(*args, part, coef, cov, blur), chunks))
+    # sides in runs of about equal sample counts, on the worker threads
+    in_run = split_even(which, starts[which + 1] - starts[which])
+    run_all(lambda part: _fit_sides(*args, part, coef, cov, blur), in_run)
     return coef, cov, blur
-
-
-def threads() -> int:
-    """Threads the model fit may use: ``ARTCAL_THREADS``, else 2 (at most the CPU count)."""
-    env = os.environ.get("ARTCAL_THREADS", "")
-    return max(1, int(env) if env.isdigit() else min(2, os.cpu_count() or 1))
-
-
-_POOLS: dict[int, ThreadPoolExecutor] = {}
-_MIN_CHUNK = 20_000  # samples; below this a thread costs more than it saves
-
-
-def _pool() -> ThreadPoolExecutor:
-    """The fit's worker threads (made on first use)."""
-    n = threads()
-    if n not in _POOLS:
-        _POOLS[n] = ThreadPoolExecutor(n, thread_name_prefix="artcal-fit")
-    return _POOLS[n]
-
-
-def _chunks(which: np.ndarray, starts: np.ndarray) -> list[np.ndarray]:
-    """The sides ``which`` in runs of about equal sample counts, 4 per thread.
-
-    More runs than threads: a thread that the OS puts aside (a busy machine) holds
-    up only its current run while the others take the rest.
-    """
-    n = starts[which + 1] - starts[which]
-    total = int(n.sum())
-    parts = min(4 * threads(), total // _MIN_CHUNK) if threads() > 1 else 1
-    if parts <= 1:
-        return [which]
-    cut = np.searchsorted(np.cumsum(n), np.arange(1, parts) * total / parts)
-    return [c for c in np.split(which, cut) if len(c)]
 
 
 @njit(cache=True, error_model="numpy")
@@ -439,33 +403,3 @@ def far_cells(along: np.ndarray, same: np.ndarray, blur_modules: np.ndarray) -> 
     return _far_cells(np.ascontiguousarray(along, np.float64), np.ascontiguousarray(same, bool),
                       np.ascontiguousarray(np.broadcast_to(blur_modules, np.shape(along)),
                                            np.float64))
-
-
-def side_slots(side: np.ndarray, n_sides: int) -> tuple[np.ndarray, int]:
-    """Position of every sample within its side, and the most samples of any side.
-
-    Args:
-        side: (N,) int, non-decreasing side index of each sample.
-        n_sides: S.
-    """
-    count = np.bincount(side, minlength=n_sides)
-    first = np.concatenate([[0], np.cumsum(count)[:-1]])
-    return np.arange(len(side)) - first[side], max(int(count.max(initial=0)), 1)
-
-
-def side_median(x: np.ndarray, use: np.ndarray, sid: np.ndarray, slot: np.ndarray,
-                S: int, P: int) -> np.ndarray:
-    """(S,) median of the samples x (N,) of each side where ``use`` (N,); NaN for none.
-
-    ``sid``, ``slot`` and ``P`` as from :func:`side_slots`.
-
-    Like ``np.nanmedian`` of a padded (S, P) layout (the mean of the two middle
-    values for an even count), without its masked-array overhead.
-    """
-    pad = np.full((S, P), np.inf)
-    pad[sid[use], slot[use]] = x[use]
-    pad.sort(axis=1)
-    count = np.bincount(sid[use], minlength=S)
-    lo = np.take_along_axis(pad, np.maximum((count - 1) // 2, 0)[:, None], 1)[:, 0]
-    hi = np.take_along_axis(pad, np.minimum(count // 2, P - 1)[:, None], 1)[:, 0]
-    return np.where(count > 0, 0.5 * (lo + hi), np.nan)

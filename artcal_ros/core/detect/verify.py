@@ -16,6 +16,7 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect.centers import diagonal_centers
+from artcal_ros.core.detect.linalg import nanmedian_rows
 from artcal_ros.core.detect.patterns import blurred_patterns
 from artcal_ros.core.detect.sampling import bilinear, cell_means, module_grid
 from artcal_ros.core.homography import apply_h, homographies, module_homographies, shortest_sides
@@ -67,7 +68,7 @@ def sides_are_edges(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, bits
               & (pout[..., 1] <= h - 1))
         seen[:, k] = on.mean(axis=1)
         vin = np.median(bilinear(lin, pin[..., 0], pin[..., 1]), axis=1)
-        vout = _nanmedian_rows(np.where(on, bilinear(lin, pout[..., 0], pout[..., 1]), np.nan))
+        vout = nanmedian_rows(np.where(on, bilinear(lin, pout[..., 0], pout[..., 1]), np.nan))
         contrast[:, k] = np.where(dark, vout - vin, vin - vout)
     clean = np.nan_to_num(contrast, nan=-1.0)
     strongest = clean.max(axis=1, keepdims=True)
@@ -152,18 +153,6 @@ def neighbour_support(corners: np.ndarray, ids: np.ndarray, board: Board,
     out = agree.astype(np.intp)
     out[(disagree > 0) & (disagree >= agree)] = -1
     return out
-
-
-def _nanmedian_rows(x: np.ndarray) -> np.ndarray:
-    """(M,) median of each row of x (M, P) over its non-NaN entries; NaN for none.
-
-    As ``np.nanmedian(x, axis=1)``, without its masked-array overhead on small rows.
-    """
-    srt = np.sort(x, axis=1)  # NaN sorts last
-    count = (~np.isnan(x)).sum(axis=1)
-    lo = np.take_along_axis(srt, np.maximum((count - 1) // 2, 0)[:, None], 1)[:, 0]
-    hi = np.take_along_axis(srt, np.maximum(count // 2, 0)[:, None], 1)[:, 0]
-    return np.where(count > 0, 0.5 * (lo + hi), np.nan)
 
 
 def _quad_area(q: np.ndarray) -> np.ndarray:
