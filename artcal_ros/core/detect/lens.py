@@ -80,9 +80,14 @@ def _division_distort(pts: np.ndarray, center: np.ndarray, scale: float, lam: fl
     out = np.empty_like(pts)
     for i in range(len(pts)):
         dx, dy = pts[i, 0] - center[0], pts[i, 1] - center[1]
-        ru = math.hypot(dx, dy) / scale
-        rd = ru
-        for _ in range(20):
+        ru = math.sqrt(dx * dx + dy * dy) / scale
+        # one fixed-point step (r_d = r_u f(r_d) at r_d = r_u) first; then Newton, a fixed
+        # 4 steps without a test (independent points overlap in the CPU), and more only
+        # for the rare point not converged by then
+        r2 = ru * ru
+        rd = ru * (1.0 + r2 * (lam + r2 * (lam2 + r2 * lam3)))
+        step = 0.0
+        for it in range(20):
             r2 = rd * rd
             g = rd - ru * (1.0 + r2 * (lam + r2 * (lam2 + r2 * lam3)))
             dg = 1.0 - ru * rd * (2.0 * lam + r2 * (4.0 * lam2 + 6.0 * lam3 * r2))
@@ -90,7 +95,7 @@ def _division_distort(pts: np.ndarray, center: np.ndarray, scale: float, lam: fl
             if not np.isfinite(step):
                 step = 0.0
             rd -= step
-            if abs(step) < 1e-13:
+            if it >= 3 and abs(step) < 1e-13:
                 break
         gain = rd / ru if ru > 0 else 1.0
         out[i, 0] = center[0] + dx * gain

@@ -20,6 +20,8 @@ import math
 import numpy as np
 from numba import njit
 
+from artcal_ros.core.detect.workers import run_all, split_even
+
 __all__ = ["coarse_offsets", "gather_samples"]
 
 
@@ -171,28 +173,18 @@ def _side_samples(s: int, lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.n
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def _gather_kernel(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
-                   t: np.ndarray, present: np.ndarray, coef: np.ndarray, length: np.ndarray,
-                   curved: np.ndarray, first: int, last: int, inner: np.ndarray,
-                   outer: np.ndarray, p0: np.ndarray, nin: np.ndarray, clear: float
-                   ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """See :func:`gather_samples`: counted first, then written into arrays of that size."""
-    S = t.shape[0]
-    count = np.zeros(S, np.intp)
-    used = np.zeros(S, np.intp)
-    none = np.empty((5, 0))
-    for s in range(S):
+def _gather_kernel(which: np.ndarray, start: np.ndarray, lin: np.ndarray, a: np.ndarray,
+                   u: np.ndarray, n: np.ndarray, t: np.ndarray, present: np.ndarray,
+                   coef: np.ndarray, length: np.ndarray, curved: np.ndarray, first: int,
+                   last: int, inner: np.ndarray, outer: np.ndarray, p0: np.ndarray,
+                   nin: np.ndarray, clear: float, count: np.ndarray, used: np.ndarray,
+                   out: np.ndarray, basis: np.ndarray, write: bool) -> None:
+    """The sides ``which``: their sample counts (and profiles used), or with ``write`` their
+    samples from ``start[s]`` on; writes only their rows (threads share the arrays)."""
+    for s in which:
         count[s], used[s] = _side_samples(s, lin, a, u, n, t, present, coef, length, curved,
                                           first, last, inner, outer, p0, nin, clear,
-                                          none, np.empty((0, 3)), 0, False)
-    out = np.empty((5, count.sum()))
-    basis = np.empty((count.sum(), 3))
-    m = 0
-    for s in range(S):
-        _side_samples(s, lin, a, u, n, t, present, coef, length, curved, first, last, inner,
-                      outer, p0, nin, clear, out, basis, m, True)
-        m += count[s]
-    return out, basis, count, used
+                                          out, basis, start[s], write)
 
 
 def gather_samples(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
@@ -228,12 +220,24 @@ def gather_samples(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
         profiles (S,) int, the profiles with at least one sample.
     """
     f64 = np.float64
-    out, basis, count, used = _gather_kernel(
-        lin, np.ascontiguousarray(a, f64), np.ascontiguousarray(u, f64),
-        np.ascontiguousarray(n, f64), np.ascontiguousarray(t, f64),
-        np.ascontiguousarray(present, bool), np.ascontiguousarray(coef, f64),
-        np.ascontiguousarray(length, f64), np.ascontiguousarray(curved, bool),
-        int(offsets[0]), int(offsets[1]), np.ascontiguousarray(inner, f64),
-        np.ascontiguousarray(outer, f64), np.ascontiguousarray(neighbours[0], f64),
-        np.ascontiguousarray(neighbours[1], f64), float(clear))
-    return out, basis, np.repeat(np.arange(len(a)), count), used
+    S = len(a)
+    args = (lin, np.ascontiguousarray(a, f64), np.ascontiguousarray(u, f64),
+            np.ascontiguousarray(n, f64), np.ascontiguousarray(t, f64),
+            np.ascontiguousarray(present, bool), np.ascontiguousarray(coef, f64),
+            np.ascontiguousarray(length, f64), np.ascontiguousarray(curved, bool),
+            int(offsets[0]), int(offsets[1]), np.ascontiguousarray(inner, f64),
+            np.ascontiguousarray(outer, f64), np.ascontiguousarray(neighbours[0], f64),
+            np.ascontiguousarray(neighbours[1], f64), float(clear))
+    count = np.zeros(S, np.intp)
+    used = np.zeros(S, np.intp)
+    # counted first, then written into arrays of that size (an upper-bound buffer costs
+    # more in page faults than the second pass), the sides in runs on the worker threads
+    runs = split_even(np.arange(S), np.sum(present, axis=1) * (offsets[1] - offsets[0] + 1))
+    start = np.zeros(S + 1, np.intp)
+    run_all(lambda r: _gather_kernel(r, start, *args, count, used, np.empty((5, 0)),
+                                     np.empty((0, 3)), False), runs)
+    start[1:] = np.cumsum(count)
+    out = np.empty((5, start[-1]))
+    basis = np.empty((start[-1], 3))
+    run_all(lambda r: _gather_kernel(r, start, *args, count, used, out, basis, True), runs)
+    return out, basis, np.repeat(np.arange(S), count), used
