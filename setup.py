@@ -21,10 +21,11 @@ setup(
         (f"share/{PACKAGE}/bags/sample", sorted(glob("bags/sample/*"))),
     ],
     python_requires=">=3.10",
-    install_requires=["setuptools", "numpy", "opencv-python-headless", "mcap",
+    install_requires=["setuptools", "numpy", "opencv-python-headless", "numba", "mcap",
                       "mcap-ros2-support", "PyYAML"],
     extras_require={"test": ["pytest", "rosbags", "ruff", "mypy", "types-PyYAML"]},
-    zip_safe=True,
+    # numba caches its compiled kernels next to the sources: they must be files
+    zip_safe=False,
     maintainer="artcal_ros maintainers",
     maintainer_email="maintainers@artcal.invalid",
     description="Automatic camera calibration from self-identifying marker boards",

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
 
 def homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
@@ -30,15 +31,25 @@ def homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 
 
 def apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Apply (M, 3, 3) homographies to points (M, P, 2) -> (M, P, 2)."""
-    # plain broadcasting: einsum is slow on the stride-0 (broadcast) point arrays
-    x, y = pts[..., 0], pts[..., 1]
-    h = H[:, None, :, :]
-    X = h[..., 0, 0] * x + h[..., 0, 1] * y + h[..., 0, 2]
-    Y = h[..., 1, 0] * x + h[..., 1, 1] * y + h[..., 1, 2]
-    W = h[..., 2, 0] * x + h[..., 2, 1] * y + h[..., 2, 2]
-    with np.errstate(all="ignore"):
-        return np.stack([X / W, Y / W], axis=-1)
+    """Apply (M, 3, 3) homographies to points (M, P, 2) -> (M, P, 2) (broadcast views welcome)."""
+    H = np.asarray(H, dtype=np.float64)
+    pts = np.asarray(pts, dtype=np.float64)
+    return _apply_kernel(H, pts)
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def _apply_kernel(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
+    """Kernel of :func:`apply_h` (non-finite where a point maps to infinity)."""
+    M, P = pts.shape[0], pts.shape[1]
+    out = np.empty((M, P, 2))
+    for m in range(M):
+        h = H[m]
+        for i in range(P):
+            x, y = pts[m, i, 0], pts[m, i, 1]
+            w = h[2, 0] * x + h[2, 1] * y + h[2, 2]
+            out[m, i, 0] = (h[0, 0] * x + h[0, 1] * y + h[0, 2]) / w
+            out[m, i, 1] = (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / w
+    return out
 
 
 def shortest_sides(quads: np.ndarray) -> np.ndarray:
@@ -49,10 +60,32 @@ def shortest_sides(quads: np.ndarray) -> np.ndarray:
 def module_homographies(corners: np.ndarray, bits: int) -> np.ndarray:
     """(M, 3, 3) maps from module coordinates (0..bits+2, x right, y down) to the image.
 
+    The square-to-quad map in closed form (Heckbert 1989), h33 = 1; it equals
+    :func:`homographies` from the module square, without an 8 x 8 solve per quad.
+
     Args:
         corners: (M, 4, 2) marker quads TL, TR, BR, BL, pixels.
         bits: code cells per marker side.
     """
-    n = bits + 2.0
-    square = np.array([[0.0, 0.0], [n, 0.0], [n, n], [0.0, n]])
-    return homographies(np.broadcast_to(square, corners.shape).copy(), corners)
+    q = np.asarray(corners, dtype=np.float64)
+    x0, x1, x2, x3 = (q[:, i, 0] for i in range(4))
+    y0, y1, y2, y3 = (q[:, i, 1] for i in range(4))
+    dx1, dx2, dx3 = x1 - x2, x3 - x2, x0 - x1 + x2 - x3
+    dy1, dy2, dy3 = y1 - y2, y3 - y2, y0 - y1 + y2 - y3
+    with np.errstate(all="ignore"):
+        den = dx1 * dy2 - dx2 * dy1
+        g = (dx3 * dy2 - dx2 * dy3) / den
+        h = (dx1 * dy3 - dx3 * dy1) / den
+    # the unit square's map, scaled to the module square (0 .. bits + 2)
+    s = 1.0 / (bits + 2.0)
+    H = np.empty((len(q), 3, 3))
+    H[:, 0, 0] = (x1 - x0 + g * x1) * s
+    H[:, 0, 1] = (x3 - x0 + h * x3) * s
+    H[:, 0, 2] = x0
+    H[:, 1, 0] = (y1 - y0 + g * y1) * s
+    H[:, 1, 1] = (y3 - y0 + h * y3) * s
+    H[:, 1, 2] = y0
+    H[:, 2, 0] = g * s
+    H[:, 2, 1] = h * s
+    H[:, 2, 2] = 1.0
+    return H

@@ -4,9 +4,12 @@ The pipeline (:mod:`~artcal_ros.core.detect.detector`) runs the stages front to
 back: ``image`` (8-bit grey for the quad finder, linear light for everything
 else) -> ``candidates`` (OpenCV's quads and ids, and ``decode`` of the quads it
 rejected) -> ``edges`` (blurred-step edge fit, ``step_model``, with the lens
-given or estimated by ``plumb``; side geometry in ``sides``) -> ``verify`` ->
-``centers``. All of them read pixels through ``sampling``; ``patterns`` holds
-what the board prints, ``lens`` the lens models.
+given or estimated by ``plumb``; side geometry in ``sides``; the pixels across
+the sides read by ``profiles``) -> ``verify`` -> ``centers``. All of them read
+pixels through ``sampling``; ``patterns`` holds what the board prints, ``lens``
+the lens models. The hot loops are numba kernels (compiled on first use and
+cached on disk); ``linalg`` has their small solves, ``workers`` the threads the
+model fit runs on (``ARTCAL_THREADS``, default 2).
 
 Imports run one way, down these layers, never up or sideways (no cycles, also
 none inside functions)::
@@ -16,8 +19,8 @@ none inside functions)::
     3  decode   edges   verify
     4  plumb    centers
     5  sides
-    6  step_model   lens   image   patterns
-    7  sampling
+    6  step_model   lens   image   patterns   profiles
+    7  sampling   linalg   workers
 """
 
 from artcal_ros.core.detect.detector import Detector, DetectorConfig, detect

@@ -13,6 +13,8 @@ refinement and verification as OpenCV's detections.
 
 from __future__ import annotations
 
+from functools import lru_cache
+
 import numpy as np
 
 from artcal_ros.core.board import Board
@@ -39,21 +41,33 @@ class PatternTable:
     """
 
     def __init__(self, board: Board, any_polarity: bool) -> None:
-        n = board.bits + 2
-        pats = np.stack([board.marker_modules(int(i)) for i in board.ids])  # (N, n, n)
-        ids = board.ids
-        if any_polarity:
-            pats = np.concatenate([pats, ~pats])
-            ids = np.concatenate([ids, ids])
-        self.ids = ids
-        self.flat = pats.reshape(len(pats), n * n).astype(np.float32)
-        self.n = n
-        # blurred versions, centered and normalised for correlation: (N * L, n * n)
-        blurred = blurred_patterns(pats)  # (N, L, n * n)
-        self.levels = blurred.shape[1]
-        c = blurred - blurred.mean(axis=2, keepdims=True)
-        c /= np.maximum(np.linalg.norm(c, axis=2, keepdims=True), 1e-9)
-        self.unit = c.reshape(-1, n * n).astype(np.float32)
+        self.ids, self.flat, self.unit, self.levels, self.n = _tables(board, any_polarity)
+
+
+@lru_cache(maxsize=8)
+def _tables(board: Board, any_polarity: bool
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
+    """A board's pattern tables, made once per board (read-only arrays).
+
+    ``detect(image, board)`` builds a new detector for every image; the tables
+    depend on the board only (5 ms a webcam frame when rebuilt each time).
+    """
+    n = board.bits + 2
+    pats = np.stack([board.marker_modules(int(i)) for i in board.ids])  # (N, n, n)
+    ids = board.ids
+    if any_polarity:
+        pats = np.concatenate([pats, ~pats])
+        ids = np.concatenate([ids, ids])
+    flat = pats.reshape(len(pats), n * n).astype(np.float32)
+    # blurred versions, centered and normalised for correlation: (N * L, n * n)
+    blurred = blurred_patterns(pats)  # (N, L, n * n)
+    c = blurred - blurred.mean(axis=2, keepdims=True)
+    c /= np.maximum(np.linalg.norm(c, axis=2, keepdims=True), 1e-9)
+    unit = c.reshape(-1, n * n).astype(np.float32)
+    ids = np.array(ids)
+    for a in (ids, flat, unit):
+        a.flags.writeable = False
+    return ids, flat, unit, blurred.shape[1], n
 
 
 def decode_quads(lin: np.ndarray, quads: np.ndarray, table: PatternTable, *,

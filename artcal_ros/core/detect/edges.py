@@ -24,24 +24,33 @@ corner k is the intersection of sides k-1 and k.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import partial
 
 import numpy as np
 
 from artcal_ros.core.detect.lens import Lens, LensPool
+from artcal_ros.core.detect.linalg import nanmedian_rows
 from artcal_ros.core.detect.plumb import estimate_division, lens_bend
-from artcal_ros.core.detect.sampling import bilinear
+from artcal_ros.core.detect.profiles import coarse_offsets, gather_samples
 from artcal_ros.core.detect.sides import (
     SideModel,
     intersect_sides,
     module_geometry_at,
     side_frames,
 )
-from artcal_ros.core.detect.step_model import far_cells, fit_step_model, side_median, side_slots
+from artcal_ros.core.detect.step_model import far_cells, fit_step_model
 from artcal_ros.core.homography import shortest_sides
 
 __all__ = ["EdgeFit", "refine_quads", "same_edges"]
 
 _STEP = 0.25  # profile sample spacing, pixels
+# the blurred-step fit: Gauss-Newton steps of a side that starts from its frame's blur,
+# and the edge movement below which a side stops early, pixels
+_FIT_STEPS = 4
+_FIT_TOL_PX = 3e-4
+# one side in _PILOT_EVERY, fitted first (_PILOT_STEPS steps from 0.6 px), gives that blur
+_PILOT_EVERY = 8
+_PILOT_STEPS = 8
 
 
 @dataclass(frozen=True)
@@ -141,9 +150,9 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
     # edge beyond a narrow quiet zone waits for the lens-aware pass below.
     used_lens: Lens | None = lens
     later = lens is None and allow_curvature
-    _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same, quiet_modules,
-                  passes, order, None, margin_px, None if later else outer_same,
-                  beyond_modules)
+    fit_blur = _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same,
+                             quiet_modules, passes, order, None, margin_px,
+                             None if later else outer_same, beyond_modules)
     if later:
         used_lens = estimate_division(model, quads, t, present, lin.shape, pool=lens_pool)
     if used_lens is not None:
@@ -151,13 +160,13 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         model.coef[:, 2] = lens_bend(used_lens, a, u, n, length)
         _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same,
                       quiet_modules, 1, np.full(S, 2), used_lens, margin_px, outer_same,
-                      beyond_modules)
+                      beyond_modules, fit_blur)
     else:
         _drop_flat_parabolas(model)
         if later and outer_same is not None:
             _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same,
                           quiet_modules, 1, model.order, None, margin_px, outer_same,
-                          beyond_modules)
+                          beyond_modules, fit_blur)
     corners, sigma = intersect_sides(model, a, u, n, M)
     side_ok = model.count >= 4
     ok = side_ok.reshape(M, 4).all(axis=1) & np.isfinite(corners).all(axis=(1, 2))
@@ -179,50 +188,6 @@ def same_edges(new: np.ndarray, old: np.ndarray) -> np.ndarray:
     return np.asarray(moved < np.maximum(3.0, 0.1 * shortest_sides(old)))
 
 
-def _profiles(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
-              t: np.ndarray, s0: np.ndarray, offsets: np.ndarray) -> np.ndarray:
-    """Intensities (S, K, J) at ``a + t u + (s0 + offsets_j) n``.
-
-    Args:
-        lin: (H, W) linear intensity image.
-        a, u, n: (S, 2) side frames.
-        t, s0: (S, K) along-side positions and normal offsets of the profiles, pixels.
-        offsets: (J,) sample offsets along the normal, pixels.
-    """
-    base = a[:, None, :] + t[..., None] * u[:, None, :] + s0[..., None] * n[:, None, :]
-    pts = base[:, :, None, :] + offsets[None, None, :, None] * n[:, None, None, :]
-    return bilinear(lin, pts[..., 0], pts[..., 1])
-
-
-def _coarse_offsets(prof: np.ndarray, offsets: np.ndarray, sign: np.ndarray,
-                    lo: np.ndarray, hi: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Offset of the strongest gradient of the expected sign inside [lo, hi] per side.
-
-    Args:
-        prof: (S, K, J) profiles sampled at ``offsets`` (J,), pixels.
-        sign: (S,) +1 where intensity rises outward (dark border), -1 where it falls.
-        lo, hi: (S,) search window along the normal, pixels.
-
-    Returns:
-        (S, K) offsets, pixels, and a validity mask (S, K).
-    """
-    g = np.zeros_like(prof)
-    g[..., 1:-1] = prof[..., 2:] - prof[..., :-2]  # 1-pixel central difference
-    g *= sign[:, None, None]
-    inside = (offsets[None, :] >= lo[:, None]) & (offsets[None, :] <= hi[:, None])
-    g = np.where(inside[:, None, :], g, -np.inf)
-    j = np.clip(np.argmax(g, axis=-1), 1, len(offsets) - 2)
-    gm = np.take_along_axis(g, (j - 1)[..., None], -1)[..., 0]
-    g0 = np.take_along_axis(g, j[..., None], -1)[..., 0]
-    gp = np.take_along_axis(g, (j + 1)[..., None], -1)[..., 0]
-    denom = gm - 2.0 * g0 + gp
-    with np.errstate(all="ignore"):
-        delta = np.where(np.isfinite(denom) & (denom < 0), 0.5 * (gm - gp) / denom, 0.0)
-    delta = np.clip(np.nan_to_num(delta), -0.5, 0.5)
-    valid = np.isfinite(g0) & (g0 > 0)
-    return offsets[j] + delta * (offsets[1] - offsets[0]), valid
-
-
 def _coarse_lines(lin: np.ndarray, quads: np.ndarray, sign: np.ndarray, lo: np.ndarray,
                   hi: np.ndarray, margin_px: float, max_profiles: int
                   ) -> tuple[SideModel, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
@@ -235,7 +200,7 @@ def _coarse_lines(lin: np.ndarray, quads: np.ndarray, sign: np.ndarray, lo: np.n
     Args:
         lin: (H, W) linear intensity image.
         quads: (M, 4, 2) approximate corners, pixels.
-        sign: (S,) expected sign of the gradient across each side (see :func:`_coarse_offsets`).
+        sign: (S,) +1 where intensity rises outward (dark border), -1 where it falls.
         lo, hi: (S,) search window along each side's normal, pixels.
         margin_px: along-side clearance from the corners, pixels.
         max_profiles: most profiles per side.
@@ -256,8 +221,7 @@ def _coarse_lines(lin: np.ndarray, quads: np.ndarray, sign: np.ndarray, lo: np.n
     first = min(float(lo.min()), 0.0) - 1.0
     last = max(float(hi.max()), 0.0) + 1.0
     offsets: np.ndarray = np.arange(first, last + 1e-9, 2 * _STEP)
-    prof = _profiles(lin, a, u, n, tc, np.zeros_like(tc), offsets)
-    s_edge, valid = _coarse_offsets(prof, offsets, sign, lo, hi)
+    s_edge, valid = coarse_offsets(lin, a, u, n, tc, offsets, sign, lo, hi)
     model.fit(tc, s_edge, valid & pc, min_sigma_px=0.05, reject_sigmas=3.0)
     return model, t, present, a, u, n
 
@@ -282,7 +246,8 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
                   quiet_modules: float, passes: int, fit_order: np.ndarray,
                   lens: Lens | None = None,
                   corner_clear: float = 1.5, outer_same: np.ndarray | None = None,
-                  beyond_modules: float = 1.0) -> None:
+                  beyond_modules: float = 1.0, start_blur: np.ndarray | None = None
+                  ) -> np.ndarray:
     """Blurred-step model fits (see :mod:`~artcal_ros.core.detect.step_model`); updates ``model``.
 
     ``fit_order`` (S,) says per side whether the parabola term is free (3) or held
@@ -302,10 +267,16 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         fit_order: (S,) see above.
         lens: optional lens (places the code cells along each side).
         corner_clear: see above, pixels.
+        start_blur: (S,) the blur the model fit starts from (an earlier pass's), pixels;
+            without, the frame's blur from a pilot fit of every 8th side.
+
+    Returns:
+        (S,) the fitted blur, pixels.
     """
     S = t.shape[0]
     M = S // 4
-    blur = np.full(S, 0.8)
+    blur = np.full(S, 0.8)  # along the side, for the code cells
+    fit_blur = start_blur
     for _ in range(max(passes, 1)):
         corners, _ = intersect_sides(model, a, u, n, M)
         bad = ~np.isfinite(corners).all(axis=(1, 2))
@@ -315,10 +286,7 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         _, m_px = module_geometry_at(corners, base.reshape(-1, 2),
                                      np.repeat(np.arange(S), base.shape[1]), n, bits)
         m_px = m_px.reshape(base.shape[:2])
-        psid = np.nonzero(present)[0]
-        pslot, pP = side_slots(psid, S)
-        m_med = np.nan_to_num(side_median(m_px[present], np.ones(len(psid), bool), psid,
-                                          pslot, S, pP), nan=1.0)
+        m_med = np.nan_to_num(nanmedian_rows(np.where(present, m_px, np.nan)), nan=1.0)
         rows = 0 if inner_same is None else int(np.shape(inner_same)[2])
         if rows == 0:
             inner = np.clip(m_med - 1.0, 1.0, 5.0)
@@ -333,63 +301,48 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         # samples: the pixels nearest a grid of points along and across each side, so
         # the model sees raw pixel values (interpolation would add its own, phase-
         # dependent edge shifts)
-        offsets = np.arange(-np.ceil(inner.max()), np.ceil(outer.max()) + 1.0)
-        pts = base[:, :, None, :] + offsets[None, None, :, None] * n[:, None, None, :]
-        h, w = lin.shape
-        px = np.clip(np.rint(pts[..., 0]), 0, w - 1)
-        py = np.clip(np.rint(pts[..., 1]), 0, h - 1)
-        rel_x = px - a[:, None, None, 0]
-        rel_y = py - a[:, None, None, 1]
-        t_s = rel_x * u[:, None, None, 0] + rel_y * u[:, None, None, 1]
-        s_s = rel_x * n[:, None, None, 0] + rel_y * n[:, None, None, 1]
-        e_s = model.offset(t_s.reshape(S, -1)).reshape(t_s.shape)
-        on_image = ((pts[..., 0] > -0.5) & (pts[..., 0] < w - 0.5)
-                    & (pts[..., 1] > -0.5) & (pts[..., 1] < h - 0.5))
-        mask = (present[..., None] & on_image & (s_s - e_s >= -inner[:, None, None])
-                & (s_s - e_s <= outer[:, None, None])
-                & ((s_s - e_s >= 0.0) | _clear_of_neighbours(corners, px, py, corner_clear)))
-        # from here on only the samples used, flat and grouped by side
-        sid = np.nonzero(mask)[0]
-        px_c, py_c, t_c, s_c = px[mask], py[mask], t_s[mask], s_s[mask]
-        values = lin[py_c.astype(np.intp), px_c.astype(np.intp)].astype(np.float64)
-        basis = model.basis_at(t_c, sid)
+        span = (-int(np.ceil(inner.max())), int(np.ceil(outer.max())))
+        samples, basis, sid, used = gather_samples(
+            lin, a, u, n, t, present, model.coef, model.length, model.order >= 3, span, inner,
+            outer, _neighbour_lines(corners), corner_clear)
+        px_c, py_c, _, s_c, values = samples
         along, m_s = module_geometry_at(corners, np.stack([px_c, py_c], axis=-1), sid, n,
                                         bits, lens)
         if rows:
             blur_modules = (blur * (bits + 2) / model.length)[sid]
             same = np.asarray(inner_same, bool).reshape(S, rows, bits)[sid]
-            far = np.stack([far_cells(along.astype(np.float32), same[:, r],
-                                      blur_modules.astype(np.float32))
+            far = np.stack([far_cells(along, same[:, r], blur_modules)
                             for r in range(rows)], axis=-1)
         else:
             far = np.zeros((len(sid), 1), dtype=np.float32)
-        coef, cov, blur = fit_step_model(
-            values, s_c, sid, S, basis, model.coef, far, m_s, fit_order, n,
-            outer=None if known is None else known[sid].astype(np.float32),
-            quiet_px=None if known is None else quiet_modules * m_s)
+        fit = partial(fit_step_model, values, s_c, sid, S, basis, model.coef, far, m_s,
+                      fit_order, n, tol_px=_FIT_TOL_PX,
+                      outer=None if known is None else known[sid].astype(np.float32),
+                      quiet_px=None if known is None else quiet_modules * m_s)
+        if fit_blur is None:
+            # the frame's blur from a few sides first: the others then start close to
+            # theirs (blur hardly varies across a frame; 0.6 px is far from a sharp
+            # edge's 0.03) and need a few steps, not 5 - 8
+            few = np.flatnonzero(used > 0)[::_PILOT_EVERY]
+            pilot = fit(blur0=np.full(S, 0.6), iterations=_PILOT_STEPS, sides=few)[2]
+            fit_blur = np.full(S, float(np.median(pilot[few])) if len(few) else 0.6)
+        coef, cov, fit_blur = fit(blur0=fit_blur, iterations=_FIT_STEPS)
+        blur = fit_blur
         model.coef = coef
         model.cov = cov
-        model.count = mask.any(axis=2).sum(axis=1).astype(np.intp)
+        model.count = used
+    assert fit_blur is not None  # passes >= 1
+    return fit_blur
 
 
-def _clear_of_neighbours(corners: np.ndarray, px: np.ndarray, py: np.ndarray,
-                         clear: float) -> np.ndarray:
-    """(S, ...) bool: points (px, py) of each side at least ``clear`` inside its two neighbours.
+def _neighbour_lines(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A point (S, 2, 2) on, and the inward normal (S, 2, 2) of, each side's two neighbours.
 
-    Args:
-        corners: (M, 4, 2) current quads; side k runs from corner k to k+1.
-        px, py: (S, ...) point coordinates, S = 4 M, grouped by side.
-        clear: pixels.
+    Index 0 is the previous side, 1 the next one, of the marker's quad (M, 4, 2).
     """
     start, _, outward, _ = side_frames(corners)
     M = len(corners)
     start, inward = start.reshape(M, 4, 2), -outward.reshape(M, 4, 2)
-    extra = (1,) * (px.ndim - 1)
-    ok = np.ones(px.shape, dtype=bool)
-    for shift in (-1, 1):  # the previous and the next side
-        p0 = np.roll(start, -shift, axis=1).reshape(4 * M, 2)
-        nin = np.roll(inward, -shift, axis=1).reshape(4 * M, 2)
-        dist = ((px - p0[:, 0].reshape(-1, *extra)) * nin[:, 0].reshape(-1, *extra)
-                + (py - p0[:, 1].reshape(-1, *extra)) * nin[:, 1].reshape(-1, *extra))
-        ok &= dist >= clear
-    return ok
+    p0 = np.stack([np.roll(start, -shift, axis=1).reshape(4 * M, 2) for shift in (-1, 1)], 1)
+    nin = np.stack([np.roll(inward, -shift, axis=1).reshape(4 * M, 2) for shift in (-1, 1)], 1)
+    return p0, nin

@@ -8,9 +8,10 @@ is (:func:`estimate_division`, the plumb-line method with a division model).
 from __future__ import annotations
 
 import numpy as np
+from numba import njit
 
-from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool
-from artcal_ros.core.detect.sides import SideModel, normal_equations, side_frames, tau_basis
+from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool, division_undistort
+from artcal_ros.core.detect.sides import SideModel, side_frames
 
 
 def lens_bend(lens: Lens, a: np.ndarray, u: np.ndarray, n: np.ndarray,
@@ -39,6 +40,9 @@ def _side_curvature(lens: DivisionLens, pts: np.ndarray, quads: np.ndarray,
                     valid: np.ndarray) -> np.ndarray:
     """(S,) parabola coefficient of every side's edge points after straightening by ``lens``.
 
+    One unweighted least-squares parabola per side (what SideModel.fit's first
+    step does), without the robust rescaling and covariance that are not used here.
+
     Args:
         lens: the division lens to straighten with.
         pts: (S, K, 2) edge points, pixels.
@@ -46,16 +50,47 @@ def _side_curvature(lens: DivisionLens, pts: np.ndarray, quads: np.ndarray,
         valid: (S, K) bool, the points to use.
     """
     M = len(quads)
-    und = lens.undistort(pts.reshape(-1, 2)).reshape(pts.shape)
-    ua, uu, un, ul = side_frames(lens.undistort(quads.reshape(-1, 2)).reshape(M, 4, 2))
-    rel = und - ua[:, None, :]
-    t = np.einsum("skd,sd->sk", rel, uu)
-    s = np.einsum("skd,sd->sk", rel, un)
-    # one unweighted least-squares parabola per side (what SideModel.fit's first
-    # step does), without the robust rescaling and covariance that are not used here
-    A = tau_basis(t, ul[:, None], np.ones((len(ul), 1), dtype=bool))
-    N, rhs = normal_equations(A, valid.astype(np.float64), np.where(valid, s, 0.0))
-    return np.linalg.solve(N, rhs)[:, 2, 0]
+    center = np.asarray(lens.center, np.float64)
+    und = division_undistort(np.ascontiguousarray(pts, np.float64).reshape(-1, 2), center,
+                             float(lens.scale), lens.lam, lens.lam2, lens.lam3)
+    und_q = division_undistort(np.ascontiguousarray(quads, np.float64).reshape(-1, 2), center,
+                               float(lens.scale), lens.lam, lens.lam2, lens.lam3)
+    ua, uu, un, ul = side_frames(und_q.reshape(M, 4, 2))
+    return _curvature_kernel(und.reshape(pts.shape), np.ascontiguousarray(valid, bool),
+                             ua, uu, un, ul)
+
+
+@njit(cache=True, error_model="numpy")
+def _curvature_kernel(und: np.ndarray, valid: np.ndarray, a: np.ndarray, u: np.ndarray,
+                      n: np.ndarray, length: np.ndarray) -> np.ndarray:
+    """(S,) c2 of the least-squares parabola s(tau) through each side's points (S, K, 2)."""
+    S, K = valid.shape
+    out = np.empty(S)
+    for k in range(S):
+        N = np.zeros((3, 3))
+        r = np.zeros(3)
+        for j in range(K):
+            if not valid[k, j]:
+                continue
+            dx, dy = und[k, j, 0] - a[k, 0], und[k, j, 1] - a[k, 1]
+            tau = 2.0 * (dx * u[k, 0] + dy * u[k, 1]) / length[k] - 1.0
+            s = dx * n[k, 0] + dy * n[k, 1]
+            x = (1.0, tau, tau * tau - 1.0 / 3.0)
+            for p in range(3):
+                r[p] += x[p] * s
+                for q in range(3):
+                    N[p, q] += x[p] * x[q]
+        for p in range(3):
+            N[p, p] += 1e-9  # keeps N regular for empty sides
+        # Cramer's rule for the last unknown
+        det = (N[0, 0] * (N[1, 1] * N[2, 2] - N[1, 2] * N[2, 1])
+               - N[0, 1] * (N[1, 0] * N[2, 2] - N[1, 2] * N[2, 0])
+               + N[0, 2] * (N[1, 0] * N[2, 1] - N[1, 1] * N[2, 0]))
+        det2 = (N[0, 0] * (N[1, 1] * r[2] - r[1] * N[2, 1])
+                - N[0, 1] * (N[1, 0] * r[2] - r[1] * N[2, 0])
+                + r[0] * (N[1, 0] * N[2, 1] - N[1, 1] * N[2, 0]))
+        out[k] = det2 / det
+    return out
 
 
 def _division(theta: np.ndarray, center: np.ndarray, scale: float) -> DivisionLens:

@@ -7,7 +7,10 @@ x right and y down, mapped to the image by each marker's homography.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 from artcal_ros.core.homography import apply_h, module_homographies
 
@@ -26,18 +29,31 @@ def bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     Returns:
         the samples, in the shape of ``x``.
     """
+    xf = np.ascontiguousarray(x, dtype=np.float64)
+    yf = np.ascontiguousarray(y, dtype=np.float64)
+    out = _bilinear_kernel(np.ascontiguousarray(image), xf.reshape(-1), yf.reshape(-1))
+    return out.reshape(xf.shape)
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def _bilinear_kernel(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
+    """Kernel of :func:`bilinear` on flat (N,) positions; NaN where a position is not finite."""
     h, w = image.shape
-    x = np.clip(x, 0.0, w - 1.000001)
-    y = np.clip(y, 0.0, h - 1.000001)
-    x0 = np.floor(x).astype(np.intp)
-    y0 = np.floor(y).astype(np.intp)
-    fx = x - x0
-    fy = y - y0
-    flat = image.ravel()
-    i = y0 * w + x0
-    top = flat[i] * (1.0 - fx) + flat[i + 1] * fx
-    bottom = flat[i + w] * (1.0 - fx) + flat[i + w + 1] * fx
-    return top * (1.0 - fy) + bottom * fy
+    out = np.empty(len(x))
+    for i in range(len(x)):
+        if not (np.isfinite(x[i]) and np.isfinite(y[i])):
+            out[i] = np.nan
+            continue
+        xi = min(max(x[i], 0.0), w - 1.000001)
+        yi = min(max(y[i], 0.0), h - 1.000001)
+        x0 = math.floor(xi)
+        y0 = math.floor(yi)
+        fx = xi - x0
+        fy = yi - y0
+        top = image[y0, x0] * (1.0 - fx) + image[y0, x0 + 1] * fx
+        bottom = image[y0 + 1, x0] * (1.0 - fx) + image[y0 + 1, x0 + 1] * fx
+        out[i] = top * (1.0 - fy) + bottom * fy
+    return out
 
 
 def ring_points(s: np.ndarray, near: float, far: float) -> np.ndarray:

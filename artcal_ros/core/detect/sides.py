@@ -9,9 +9,13 @@ direction ``u``), ``s`` pixels along its outward unit normal ``n``.
 
 from __future__ import annotations
 
+import math
+
 import numpy as np
+from numba import njit
 
 from artcal_ros.core.detect.lens import Lens
+from artcal_ros.core.detect.linalg import solve
 from artcal_ros.core.homography import module_homographies
 
 
@@ -51,27 +55,6 @@ def tau_basis(t: np.ndarray, length: np.ndarray, curved: np.ndarray) -> np.ndarr
     tau = 2.0 * t / length - 1.0
     quad = np.where(curved, tau * tau - 1.0 / 3.0, 0.0)
     return np.stack([np.ones_like(tau), tau, quad], axis=-1)
-
-
-def normal_equations(A: np.ndarray, w: np.ndarray, s: np.ndarray,
-                     pad: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """Normal equations of a weighted least-squares fit of s ~ A coef, one per side.
-
-    Args:
-        A: (S, K, 3) design matrices (see :func:`tau_basis`).
-        w: (S, K) weights (0 for unused points).
-        s: (S, K) observations (finite everywhere).
-        pad: optional (S, 3, 3) added to the normal matrix (keeps unused terms regular).
-
-    Returns:
-        N (S, 3, 3) and rhs (S, 3, 1); a tiny ridge keeps N regular for empty sides.
-    """
-    AtW = (A * w[..., None]).transpose(0, 2, 1)
-    N = np.matmul(AtW, A)
-    if pad is not None:
-        N = N + pad
-    N = N + 1e-9 * np.eye(3)
-    return N, np.matmul(AtW, s[..., None])
 
 
 class SideModel:
@@ -122,35 +105,88 @@ class SideModel:
             reject_sigmas: rejection threshold, in robust sigmas.
             iterations: reweighting rounds.
         """
-        A = self.basis(t)
-        w = valid.astype(np.float64)
-        s = np.where(valid, s, 0.0)
-        eye = np.eye(3)
-        # an unused parabola term gets an identity row so the batched solve stays regular
-        pad = np.where(self.order >= 3, 0.0, 1.0)[:, None, None] * eye[2][None, :, None] \
-            * eye[2][None, None, :]
+        f64 = np.float64
+        self.coef, self.cov, self.count = _robust_fit(
+            np.ascontiguousarray(t, f64), np.ascontiguousarray(s, f64),
+            np.ascontiguousarray(valid, bool), np.ascontiguousarray(self.length, f64),
+            np.ascontiguousarray(self.order >= 3), float(min_sigma_px), float(reject_sigmas),
+            int(iterations))
+
+
+@njit(cache=True, error_model="numpy")
+def _robust_fit(t: np.ndarray, s: np.ndarray, valid: np.ndarray, length: np.ndarray,
+                curved: np.ndarray, min_sigma: float, reject: float, iterations: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Kernel of :meth:`SideModel.fit`: coef (S, 3), cov (S, 3, 3), count (S,)."""
+    S, K = t.shape
+    coef = np.zeros((S, 3))
+    cov = np.zeros((S, 3, 3))
+    count = np.zeros(S, np.intp)
+    A = np.empty((K, 3))
+    obs = np.empty(K)
+    res = np.empty(K)
+    w = np.empty(K)
+    buf = np.empty(K)
+    N = np.empty((3, 3))
+    rhs = np.empty((3, 1))
+    for k in range(S):
+        for j in range(K):
+            tau = 2.0 * t[k, j] / length[k] - 1.0
+            A[j, 0], A[j, 1] = 1.0, tau
+            A[j, 2] = tau * tau - 1.0 / 3.0 if curved[k] else 0.0
+            w[j] = 1.0 if valid[k, j] else 0.0
+            obs[j] = s[k, j] if valid[k, j] else 0.0
+        c: np.ndarray = np.zeros(3)
         for _ in range(iterations):
-            N, rhs = normal_equations(A, w, s, pad)
-            coef = np.linalg.solve(N, rhs)[..., 0]
-            res = s - np.matmul(A, coef[..., None])[..., 0]
-            scale = np.maximum(1.4826 * _masked_median(np.abs(res), w > 0), min_sigma_px)
-            w = (valid & (np.abs(res) <= reject_sigmas * scale[:, None])).astype(np.float64)
-        count = w.sum(axis=1)
-        dof = np.maximum(count - self.order, 1.0)
-        var = (w * res * res).sum(axis=1) / dof
-        N, _ = normal_equations(A, w, s, pad)
-        self.coef = coef
-        self.cov = np.linalg.inv(N) * var[:, None, None]
-        self.cov[:, 2, 2] *= (self.order >= 3)
-        self.count = count.astype(np.intp)
+            _weighted_normal(A, w, obs, curved[k], N, rhs)
+            c = solve(N, rhs)[:, 0]
+            m = 0
+            for j in range(K):
+                res[j] = obs[j] - (A[j, 0] * c[0] + A[j, 1] * c[1] + A[j, 2] * c[2])
+                if w[j] > 0:
+                    buf[m] = abs(res[j])
+                    m += 1
+            # robust sigma from the median absolute residual (the upper middle value)
+            med = np.sort(buf[:m])[m // 2] if m > 0 else 0.0
+            scale = max(1.4826 * med, min_sigma)
+            for j in range(K):
+                w[j] = 1.0 if (valid[k, j] and abs(res[j]) <= reject * scale) else 0.0
+        n_used = 0.0
+        sq = 0.0
+        for j in range(K):
+            n_used += w[j]
+            sq += w[j] * res[j] * res[j]
+        var = sq / max(n_used - (3.0 if curved[k] else 2.0), 1.0)
+        _weighted_normal(A, w, obs, curved[k], N, rhs)
+        inv = solve(N, np.eye(3))
+        for p in range(3):
+            coef[k, p] = c[p]
+            for q in range(3):
+                cov[k, p, q] = inv[p, q] * var
+        if not curved[k]:
+            cov[k, 2, 2] = 0.0
+        count[k] = int(n_used)
+    return coef, cov, count
 
 
-def _masked_median(x: np.ndarray, mask: np.ndarray) -> np.ndarray:
-    """Per-row median of x (S, K) over mask (S, K); 0 for empty rows."""
-    srt = np.sort(np.where(mask, x, np.inf), axis=1)
-    count = mask.sum(axis=1)
-    mid = np.take_along_axis(srt, np.maximum(count // 2, 0)[:, None], 1)[:, 0]
-    return np.where(count > 0, mid, 0.0)
+@njit(cache=True, error_model="numpy", inline="always")
+def _weighted_normal(A: np.ndarray, w: np.ndarray, obs: np.ndarray, curved: bool,
+                     N: np.ndarray, rhs: np.ndarray) -> None:
+    """N (3, 3) = A^T W A (+ an identity row for an unused parabola term, + a tiny ridge),
+    rhs (3, 1) = A^T W obs, for one side's rows A (K, 3), weights w (K,), observations (K,)."""
+    N[:] = 0.0
+    rhs[:] = 0.0
+    for j in range(len(w)):
+        if w[j] == 0.0:
+            continue
+        for p in range(3):
+            rhs[p, 0] += A[j, p] * w[j] * obs[j]
+            for q in range(3):
+                N[p, q] += A[j, p] * w[j] * A[j, q]
+    if not curved:
+        N[2, 2] += 1.0
+    for p in range(3):
+        N[p, p] += 1e-9
 
 
 def intersect_sides(model: SideModel, a: np.ndarray, u: np.ndarray, n: np.ndarray,
@@ -168,55 +204,81 @@ def intersect_sides(model: SideModel, a: np.ndarray, u: np.ndarray, n: np.ndarra
     Returns:
         corners (M, 4, 2) pixels and their 1-sigma errors per axis (M, 4), pixels.
     """
-    prev = (np.arange(4 * M).reshape(M, 4) - 1) % 4 + (np.arange(M) * 4)[:, None]
-    prev = prev.ravel()
-    cur = np.arange(4 * M)
-    t_prev = model.length[prev].copy()
-    t_cur = np.zeros(4 * M)
-    for _ in range(4):
-        p1, d1 = _point_tangent(model, a, u, n, prev, t_prev)
-        p2, d2 = _point_tangent(model, a, u, n, cur, t_cur)
-        # p1 + x d1 = p2 + y d2
-        det = d1[:, 0] * (-d2[:, 1]) - d1[:, 1] * (-d2[:, 0])
-        rx = p2 - p1
-        with np.errstate(all="ignore"):
-            x = (rx[:, 0] * (-d2[:, 1]) - rx[:, 1] * (-d2[:, 0])) / det
-            y = (d1[:, 0] * rx[:, 1] - d1[:, 1] * rx[:, 0]) / det
-        corner = p1 + x[:, None] * d1
-        t_prev = t_prev + x * np.einsum("ij,ij->i", d1, u[prev])
-        t_cur = t_cur + y * np.einsum("ij,ij->i", d2, u[cur])
-    # error: each side's normal offset variance at the corner, mapped through the
-    # 2x2 system n_prev . x = d_prev, n_cur . x = d_cur
-    v_prev = _offset_var(model, prev, t_prev)
-    v_cur = _offset_var(model, cur, t_cur)
-    Nmat = np.stack([n[prev], n[cur]], axis=1)  # (S, 2, 2)
-    with np.errstate(all="ignore"):
-        Ninv = np.linalg.inv(Nmat + 1e-12 * np.eye(2))
-    cov = np.einsum("sij,sj,skj->sik", Ninv, np.stack([v_prev, v_cur], axis=1), Ninv)
-    sigma = np.sqrt(np.maximum(0.5 * (cov[:, 0, 0] + cov[:, 1, 1]), 0.0))
+    f64 = np.float64
+    corner, sigma = _intersect_kernel(
+        np.ascontiguousarray(model.coef, f64), np.ascontiguousarray(model.cov, f64),
+        np.ascontiguousarray(model.length, f64), np.ascontiguousarray(model.order >= 3),
+        np.ascontiguousarray(a, f64), np.ascontiguousarray(u, f64),
+        np.ascontiguousarray(n, f64))
     return corner.reshape(M, 4, 2), sigma.reshape(M, 4)
 
 
-def _point_tangent(model: SideModel, a: np.ndarray, u: np.ndarray, n: np.ndarray,
-                   sides: np.ndarray, t: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Point (N, 2) on the fitted edge of each side (N,) at t (N,), and the unit tangent there."""
-    L = model.length[sides]
-    quad = model.order[sides] >= 3
-    x = tau_basis(t, L, quad)
-    tau = x[:, 1]
-    c = model.coef[sides]
-    s = c[:, 0] + c[:, 1] * tau + np.where(quad, c[:, 2] * x[:, 2], 0.0)
-    ds_dt = (c[:, 1] + np.where(quad, 2.0 * c[:, 2] * tau, 0.0)) * 2.0 / L
-    p = a[sides] + t[:, None] * u[sides] + s[:, None] * n[sides]
-    d = u[sides] + ds_dt[:, None] * n[sides]
-    d /= np.hypot(d[:, 0], d[:, 1])[:, None]
-    return p, d
+@njit(cache=True, error_model="numpy", inline="always")
+def _point_tangent(coef: np.ndarray, length: np.ndarray, curved: np.ndarray, a: np.ndarray,
+                   u: np.ndarray, n: np.ndarray, k: int, t: float
+                   ) -> tuple[float, float, float, float]:
+    """Point (x, y) on the fitted edge of side k at t, and the unit tangent (dx, dy) there."""
+    L = length[k]
+    tau = 2.0 * t / L - 1.0
+    c2 = coef[k, 2] if curved[k] else 0.0
+    s = coef[k, 0] + coef[k, 1] * tau + c2 * (tau * tau - 1.0 / 3.0)
+    ds_dt = (coef[k, 1] + 2.0 * c2 * tau) * 2.0 / L
+    dx = u[k, 0] + ds_dt * n[k, 0]
+    dy = u[k, 1] + ds_dt * n[k, 1]
+    norm = math.hypot(dx, dy)
+    return (a[k, 0] + t * u[k, 0] + s * n[k, 0], a[k, 1] + t * u[k, 1] + s * n[k, 1],
+            dx / norm, dy / norm)
 
 
-def _offset_var(model: SideModel, sides: np.ndarray, t: np.ndarray) -> np.ndarray:
-    """(N,) variance of the fitted normal offset of each side (N,) at t (N,), pixels^2."""
-    x = tau_basis(t, model.length[sides], model.order[sides] >= 3)
-    return np.einsum("sp,spq,sq->s", x, model.cov[sides], x)
+@njit(cache=True, error_model="numpy", inline="always")
+def _offset_var(cov: np.ndarray, length: np.ndarray, curved: np.ndarray, k: int,
+                t: float) -> float:
+    """Variance of side k's fitted normal offset at t, pixels^2."""
+    tau = 2.0 * t / length[k] - 1.0
+    x = (1.0, tau, tau * tau - 1.0 / 3.0 if curved[k] else 0.0)
+    v = 0.0
+    for i in range(3):
+        for j in range(3):
+            v += x[i] * cov[k, i, j] * x[j]
+    return v
+
+
+@njit(cache=True, error_model="numpy")
+def _intersect_kernel(coef: np.ndarray, cov: np.ndarray, length: np.ndarray,
+                      curved: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray]:
+    """Corners (S, 2) and their sigmas (S,): see :func:`intersect_sides`."""
+    S = len(length)
+    corner = np.empty((S, 2))
+    sigma = np.empty(S)
+    for cur in range(S):
+        prev = cur - cur % 4 + (cur % 4 + 3) % 4
+        t_prev, t_cur = length[prev], 0.0
+        for _ in range(4):
+            x1, y1, dx1, dy1 = _point_tangent(coef, length, curved, a, u, n, prev, t_prev)
+            x2, y2, dx2, dy2 = _point_tangent(coef, length, curved, a, u, n, cur, t_cur)
+            # p1 + x d1 = p2 + y d2
+            det = dx1 * (-dy2) - dy1 * (-dx2)
+            rx, ry = x2 - x1, y2 - y1
+            xs = (rx * (-dy2) - ry * (-dx2)) / det
+            ys = (dx1 * ry - dy1 * rx) / det
+            corner[cur, 0] = x1 + xs * dx1
+            corner[cur, 1] = y1 + xs * dy1
+            t_prev += xs * (dx1 * u[prev, 0] + dy1 * u[prev, 1])
+            t_cur += ys * (dx2 * u[cur, 0] + dy2 * u[cur, 1])
+        # error: each side's normal offset variance at the corner, mapped through the
+        # 2x2 system n_prev . x = d_prev, n_cur . x = d_cur
+        v = (_offset_var(cov, length, curved, prev, t_prev),
+             _offset_var(cov, length, curved, cur, t_cur))
+        m00, m01 = n[prev, 0] + 1e-12, n[prev, 1]
+        m10, m11 = n[cur, 0], n[cur, 1] + 1e-12
+        det = m00 * m11 - m01 * m10
+        inv = ((m11 / det, -m01 / det), (-m10 / det, m00 / det))
+        c00 = inv[0][0] ** 2 * v[0] + inv[0][1] ** 2 * v[1]
+        c11 = inv[1][0] ** 2 * v[0] + inv[1][1] ** 2 * v[1]
+        half = 0.5 * (c00 + c11)
+        sigma[cur] = 0.0 if half < 0.0 else math.sqrt(half)  # NaN stays NaN
+    return corner, sigma
 
 
 def module_geometry_at(corners: np.ndarray, pts: np.ndarray, side: np.ndarray,
@@ -241,30 +303,62 @@ def module_geometry_at(corners: np.ndarray, pts: np.ndarray, side: np.ndarray,
     Returns:
         along (N,) modules and module width (N,) pixels (at least half a pixel).
     """
-    size = bits + 2.0
-    marker = side // 4
-    inward = np.array([[0.0, 1.0], [-1.0, 0.0], [0.0, -1.0], [1.0, 0.0]])
-    k = side % 4
+    pts = np.ascontiguousarray(pts, dtype=np.float64)
+    side = np.ascontiguousarray(side, dtype=np.intp)
     if lens is None:
         H = module_homographies(corners, bits)
-        mod = apply_each(np.linalg.inv(H), marker, pts)
-        inner = apply_each(H, marker, mod + inward[k])
+        mod, inner = _module_points(np.linalg.inv(H), H, side, pts)
     else:
         M = len(corners)
         H = module_homographies(lens.undistort(corners.reshape(-1, 2)).reshape(M, 4, 2), bits)
-        mod = apply_each(np.linalg.inv(H), marker, lens.undistort(pts))
-        inner = lens.distort(apply_each(H, marker, mod + inward[k]))
-    m_px = np.einsum("nd,nd->n", pts - inner, n[side])
-    along = np.where(k % 2 == 0, mod[:, 0], mod[:, 1])
-    along = np.where(k >= 2, size - along, along)  # in side direction
-    return along, np.clip(m_px, 0.5, None)
+        mod, inner = _module_points(np.linalg.inv(H), H, side, lens.undistort(pts))
+        inner = lens.distort(inner)
+    return _along_width(mod, inner, pts, side, np.ascontiguousarray(n, np.float64), bits + 2.0)
 
 
-def apply_each(H: np.ndarray, which: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Apply homography ``H[which[i]]`` ((M, 3, 3), which (N,)) to each point (N, 2)."""
-    h = [np.take(col, which) for col in np.ascontiguousarray(H.reshape(-1, 9).T)]
-    x, y = pts[:, 0], pts[:, 1]
-    w = h[6] * x + h[7] * y + h[8]
-    with np.errstate(all="ignore"):
-        return np.stack([(h[0] * x + h[1] * y + h[2]) / w, (h[3] * x + h[4] * y + h[5]) / w],
-                        axis=1)
+@njit(cache=True, error_model="numpy")
+def _module_points(Hinv: np.ndarray, H: np.ndarray, side: np.ndarray, pts: np.ndarray
+                   ) -> tuple[np.ndarray, np.ndarray]:
+    """Module coordinates (N, 2) of points (N, 2) on sides (N,), and the image of the point
+    one module further inward from each (N, 2) (both through the marker's homography)."""
+    mod = np.empty_like(pts)
+    inner = np.empty_like(pts)
+    for i in range(len(pts)):
+        m, k = side[i] // 4, side[i] % 4
+        x, y = _apply(Hinv[m], pts[i, 0], pts[i, 1])
+        mod[i, 0], mod[i, 1] = x, y
+        # one module inward: +y from the top side, -x from the right, -y, +x
+        if k == 0:
+            y += 1.0
+        elif k == 1:
+            x -= 1.0
+        elif k == 2:
+            y -= 1.0
+        else:
+            x += 1.0
+        inner[i, 0], inner[i, 1] = _apply(H[m], x, y)
+    return mod, inner
+
+
+@njit(cache=True, error_model="numpy")
+def _along_width(mod: np.ndarray, inner: np.ndarray, pts: np.ndarray, side: np.ndarray,
+                 n: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
+    """Position along each side, modules (in side direction), and module width, pixels."""
+    along = np.empty(len(pts))
+    width = np.empty(len(pts))
+    for i in range(len(pts)):
+        k = side[i] % 4
+        a = mod[i, 0] if k % 2 == 0 else mod[i, 1]
+        along[i] = size - a if k >= 2 else a
+        w = (pts[i, 0] - inner[i, 0]) * n[side[i], 0] + (pts[i, 1] - inner[i, 1]) * n[side[i], 1]
+        width[i] = max(w, 0.5)  # NaN stays NaN, as np.clip does
+        if np.isnan(w):
+            width[i] = w
+    return along, width
+
+
+@njit(cache=True, error_model="numpy", inline="always")
+def _apply(H: np.ndarray, x: float, y: float) -> tuple[float, float]:
+    """A homography H (3, 3) applied to one point."""
+    w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
+    return (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / w, (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / w

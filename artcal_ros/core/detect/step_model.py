@@ -19,57 +19,46 @@ decoded id; blurred along the side, which is exact for a Gaussian blur since it
 is separable). Where the board puts a known edge just beyond the quiet zone
 (the neighbouring tile of a mixed board), a term ``- c_out * Phi((s - e - q) / w)``
 models it too, ``q`` being the quiet zone's width there. All sides are solved
-together by damped Gauss-Newton.
+one by one by damped Gauss-Newton (a compiled kernel).
 """
 
 from __future__ import annotations
 
-import warnings
+import math
 
 import numpy as np
+from numba import njit
 
-_INV_SQRT2 = float(1.0 / np.sqrt(2.0))  # Python floats keep float32 arrays float32
-_INV_SQRT2PI = float(1.0 / np.sqrt(2.0 * np.pi))
+from artcal_ros.core.detect.linalg import solve
+from artcal_ros.core.detect.workers import run_all, split_even
+
+# A&S 7.1.26 coefficients of erfc (absolute error < 1.5e-7)
+_P = 0.3275911
+_A1, _A2, _A3, _A4, _A5 = 0.254829592, -0.284496736, 1.421413741, -1.453152027, 1.061405429
+_INV_SQRT2 = 1.0 / math.sqrt(2.0)
+_INV_SQRT2PI = 1.0 / math.sqrt(2.0 * math.pi)
 
 
-def norm_cdf_pdf(z: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Standard normal CDF and density of z, sharing one exponential.
+@njit(cache=True, error_model="numpy", inline="always")
+def norm_cdf_pdf(z: float) -> tuple[float, float]:
+    """Standard normal CDF and density of a scalar z, sharing one exponential.
 
     The CDF uses Abramowitz & Stegun 7.1.26 for erf (absolute error < 1.5e-7).
-    The dtype of z is kept (float32 halves the time of the model fit); the work
-    is done in place to keep temporaries few.
     """
-    z = np.asarray(z)
-    a = np.abs(z)
-    a *= _INV_SQRT2
-    e = a * a
-    np.negative(e, out=e)
-    np.exp(e, out=e)
-    t = a  # a is not needed any more
-    t *= 0.3275911
-    t += 1.0
-    np.reciprocal(t, out=t)
-    poly = t * 1.061405429
-    for coef in (-1.453152027, 1.421413741, -0.284496736, 0.254829592):
-        poly += coef
-        poly *= t
-    poly *= 0.5
-    poly *= e  # Phi(-|z|)
-    # Phi(z) = tail below 0, 1 - tail above (arithmetic select: np.where is slower)
-    cdf = (z >= 0).astype(poly.dtype)
-    cdf *= 1.0 - 2.0 * poly
-    cdf += poly
-    e *= _INV_SQRT2PI
-    return cdf, e
+    a = abs(z) * _INV_SQRT2
+    if a > 6.5:
+        # beyond 9.2 sigma both tails are below 1e-19: no exponential needed
+        return (1.0 if z >= 0.0 else 0.0), 0.0
+    e = math.exp(-a * a)
+    t = 1.0 / (1.0 + _P * a)
+    tail = 0.5 * e * t * (_A1 + t * (_A2 + t * (_A3 + t * (_A4 + t * _A5))))  # Phi(-|z|)
+    cdf = 1.0 - tail if z >= 0.0 else tail
+    return cdf, e * _INV_SQRT2PI
 
 
-def phi_cdf(z: np.ndarray) -> np.ndarray:
-    """Standard normal CDF."""
-    return norm_cdf_pdf(z)[0]
-
-
-def pixel_esf(d: np.ndarray, sigma: np.ndarray, box_a: np.ndarray, box_b: np.ndarray
-              ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+@njit(cache=True, error_model="numpy", inline="always")
+def pixel_esf(d: float, sigma: float, box_a: float, box_b: float
+              ) -> tuple[float, float, float]:
     """Edge-spread function of a square pixel with Gaussian blur, and its derivatives.
 
     A pixel integrates over its square; across an edge whose normal is (nx, ny)
@@ -79,64 +68,254 @@ def pixel_esf(d: np.ndarray, sigma: np.ndarray, box_a: np.ndarray, box_b: np.nda
 
     Args:
         d: distance of the pixel center from the edge (positive on the bright side), pixels.
-        sigma: Gaussian blur, pixels (broadcast with d).
-        box_a, box_b: |nx|, |ny| (broadcast with d).
+        sigma: Gaussian blur, pixels.
+        box_a, box_b: |nx|, |ny| of the edge's normal.
 
     Returns:
-        value (0..1), d value / d d, d value / d log sigma (in d's float type).
+        value (0..1), d value / d d, d value / d log sigma.
     """
-    a = np.maximum(box_a, 0.02)
-    b = np.maximum(box_b, 0.02)
+    a = max(box_a, 0.02)
+    b = max(box_b, 0.02)
     inv_sigma = 1.0 / sigma
+    # a pixel wholly on one side of the blurred edge (most of a sharp edge's band)
+    if (d - 0.5 * (a + b)) * inv_sigma > 9.2:
+        return 1.0, 0.0, 0.0
+    if (d + 0.5 * (a + b)) * inv_sigma < -9.2:
+        return 0.0, 0.0, 0.0
     # sums over the box's four corners of sgn * P2(z), sgn * P1(z) and sgn * z P1(z),
     # with P1 the antiderivative of Phi and P2 its antiderivative
-    s2 = s1 = sz1 = None
-    for shift, sgn in ((0.5 * (a + b), 1.0), (0.5 * (a - b), -1.0), (-0.5 * (a - b), -1.0),
-                       (-0.5 * (a + b), 1.0)):
-        z = d + shift
-        z *= inv_sigma
-        cdf, pdf = norm_cdf_pdf(z)
-        p1 = z * cdf
-        p1 += pdf
-        p2 = z * z
-        p2 += 1.0
-        p2 *= cdf
-        pdf *= z
-        p2 += pdf
-        p2 *= 0.5
-        zp1 = z * p1
-        if s2 is None:
-            s2, s1, sz1 = p2, p1, zp1
-        elif sgn > 0:
-            s2 += p2
-            s1 += p1
-            sz1 += zp1
+    s2 = 0.0
+    s1 = 0.0
+    sz1 = 0.0
+    for k in range(4):
+        if k == 0:
+            shift, sgn = 0.5 * (a + b), 1.0
+        elif k == 1:
+            shift, sgn = 0.5 * (a - b), -1.0
+        elif k == 2:
+            shift, sgn = -0.5 * (a - b), -1.0
         else:
-            s2 -= p2
-            s1 -= p1
-            sz1 -= zp1
-    assert s2 is not None and s1 is not None and sz1 is not None
-    inv = 1.0 / (a * b)
-    sig2 = sigma * sigma * inv
-    val = s2 * sig2
+            shift, sgn = -0.5 * (a + b), 1.0
+        z = (d + shift) * inv_sigma
+        cdf, pdf = norm_cdf_pdf(z)
+        p1 = z * cdf + pdf
+        p2 = 0.5 * ((z * z + 1.0) * cdf + z * pdf)
+        s2 += sgn * p2
+        s1 += sgn * p1
+        sz1 += sgn * z * p1
+    sig2 = sigma * sigma / (a * b)
     # d/d log sigma of sigma^2 P2(c / sigma): 2 sigma^2 P2 - sigma c P1 = sigma^2 (2 P2 - z P1)
-    s2 *= 2.0
-    s2 -= sz1
-    s2 *= sig2
-    s1 *= sigma * inv
-    return val, s1, s2
+    return s2 * sig2, s1 * sigma / (a * b), (2.0 * s2 - sz1) * sig2
+
+
+@njit(cache=True, error_model="numpy")
+def _median_of(values: np.ndarray, rel: np.ndarray, lo: int, hi: int, below: bool) -> float:
+    """Median of values[lo:hi] where rel < -0.3 (below) or rel > 0.3 (not below); NaN for none."""
+    buf = np.empty(hi - lo)
+    m = 0
+    for i in range(lo, hi):
+        if (rel[i - lo] < -0.3) if below else (rel[i - lo] > 0.3):
+            buf[m] = values[i]
+            m += 1
+    if m == 0:
+        return np.nan
+    return float(np.median(buf[:m]))
+
+
+@njit(cache=True, error_model="numpy")
+def _normal_equations(p: np.ndarray, lo: int, hi: int, values: np.ndarray, s: np.ndarray,
+                      basis: np.ndarray, far: np.ndarray, module_px: np.ndarray,
+                      outer: np.ndarray, quiet_px: np.ndarray, box_a: float, box_b: float,
+                      quad: float, N: np.ndarray, g: np.ndarray) -> float:
+    """Gauss-Newton normal equations of one side's samples lo..hi at parameters p (6,).
+
+    Fills N (6, 6) = J^T J and g (6,) = J^T r; returns the cost r^T r. The model
+    is the module docstring's; p = (edge polynomial (3), A, D, log w).
+    """
+    rows = far.shape[1]
+    has_outer = outer.shape[0] > 0
+    w = max(math.exp(p[5]), 0.03)
+    # a Gaussian of the same second moment is close enough for the other edges
+    box_var = (box_a * box_a + box_b * box_b) / 12.0
+    w_eff = math.sqrt(w * w + box_var)
+    shrink = (w * w) / (w_eff * w_eff)
+    D = p[4]
+    # the sums are kept in scalars (registers); an array would be re-read every sample
+    n00 = n10 = n11 = n20 = n21 = n22 = n30 = n31 = n32 = n33 = n40 = 0.0
+    n41 = n42 = n43 = n44 = n50 = n51 = n52 = n53 = n54 = n55 = 0.0
+    r0 = r1 = r2 = r3 = r4 = r5 = cost = 0.0
+    for i in range(lo, hi):
+        d = s[i] - (basis[i, 0] * p[0] + basis[i, 1] * p[1] + basis[i, 2] * p[2])
+        F, g1, gw = pixel_esf(d, w, box_a, box_b)
+        de = -g1
+        if has_outer:
+            # the known edge beyond the quiet zone, back to the border's colour
+            z = (d - quiet_px[i]) / w_eff
+            val, pdf = norm_cdf_pdf(z)
+            F -= outer[i] * val
+            de += outer[i] * (pdf / w_eff)
+            gw += outer[i] * (pdf * z * shrink)
+        prev = 0.0
+        for r in range(rows):
+            # the edge where code row r+1 begins, weighted by its change of colour
+            c = far[i, r] - prev
+            prev = far[i, r]
+            z = -(d + (r + 1) * module_px[i]) / w_eff
+            val, pdf = norm_cdf_pdf(z)
+            F += c * val
+            de += c * (pdf / w_eff)
+            gw -= c * (pdf * z * shrink)
+        res = values[i] - (p[3] + D * F)
+        cost += res * res
+        if de == 0.0 and gw == 0.0:
+            # every edge's tail is flat here (most of a sharp edge's band): only the
+            # levels A and D see this sample
+            r3 += res
+            r4 += F * res
+            n33 += 1.0
+            n43 += F
+            n44 += F * F
+            continue
+        de *= D
+        # the Jacobian row: d/d (c0, c1, c2, A, D, log w)
+        j0 = de * basis[i, 0]
+        j1 = de * basis[i, 1]
+        j2 = de * basis[i, 2] * quad
+        j3 = 1.0
+        j4 = F
+        j5 = D * gw
+        r0 += j0 * res
+        r1 += j1 * res
+        r2 += j2 * res
+        r3 += j3 * res
+        r4 += j4 * res
+        r5 += j5 * res
+        n00 += j0 * j0
+        n10 += j1 * j0
+        n11 += j1 * j1
+        n20 += j2 * j0
+        n21 += j2 * j1
+        n22 += j2 * j2
+        n30 += j3 * j0
+        n31 += j3 * j1
+        n32 += j3 * j2
+        n33 += j3 * j3
+        n40 += j4 * j0
+        n41 += j4 * j1
+        n42 += j4 * j2
+        n43 += j4 * j3
+        n44 += j4 * j4
+        n50 += j5 * j0
+        n51 += j5 * j1
+        n52 += j5 * j2
+        n53 += j5 * j3
+        n54 += j5 * j4
+        n55 += j5 * j5
+    lower = (n00, n10, n11, n20, n21, n22, n30, n31, n32, n33, n40, n41, n42, n43, n44,
+             n50, n51, n52, n53, n54, n55)
+    k = 0
+    for a in range(6):
+        for b in range(a + 1):
+            N[a, b] = N[b, a] = lower[k]
+            k += 1
+    g[0], g[1], g[2], g[3], g[4], g[5] = r0, r1, r2, r3, r4, r5
+    return cost
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.ndarray,
+               coef0: np.ndarray, far: np.ndarray, module_px: np.ndarray,
+               fit_order: np.ndarray, normal: np.ndarray, outer: np.ndarray,
+               quiet_px: np.ndarray, cov_scale: float, iterations: int, blur0: np.ndarray,
+               tol_px: float, which: np.ndarray, coef: np.ndarray, cov: np.ndarray,
+               blur: np.ndarray) -> None:
+    """Damped Gauss-Newton fit of the sides ``which``; see :func:`fit_step_model`.
+
+    Writes rows ``which`` of coef (S, 3), cov (S, 3, 3) and blur (S,) (and nothing
+    else, so threads can share them).
+    """
+    for k in which:
+        lo, hi = starts[k], starts[k + 1]
+        quad = 1.0 if fit_order[k] >= 3 else 0.0
+        box_a, box_b = abs(normal[k, 0]), abs(normal[k, 1])
+        rel = s[lo:hi] - (basis[lo:hi, 0] * coef0[k, 0] + basis[lo:hi, 1] * coef0[k, 1]
+                          + basis[lo:hi, 2] * coef0[k, 2])
+        A = _median_of(values, rel, lo, hi, True)
+        B = _median_of(values, rel, lo, hi, False)
+        A = 0.0 if np.isnan(A) else A
+        B = 0.0 if np.isnan(B) else B
+        p = np.empty(6)
+        p[:3] = coef0[k]
+        p[3] = A
+        p[4] = B - A
+        p[5] = math.log(max(blur0[k], 0.03))
+        N = np.empty((6, 6))
+        g = np.empty(6)
+        Nt = np.empty((6, 6))
+        gt = np.empty(6)
+        cost = _normal_equations(p, lo, hi, values, s, basis, far, module_px, outer,
+                                 quiet_px, box_a, box_b, quad, N, g)
+        lam = 1e-3
+        Nd = np.empty((6, 6))
+        rhs = np.empty((6, 1))
+        for _ in range(iterations):
+            Nd[:] = N
+            Nd[2, 2] += 1.0 - quad  # a held parabola term: an identity row
+            for j in range(6):
+                Nd[j, j] += lam * (Nd[j, j] + 1e-9)
+                rhs[j, 0] = g[j]
+            step = solve(Nd, rhs)[:, 0]
+            for j in range(6):
+                if not np.isfinite(step[j]):
+                    step[j] = 0.0
+            step[0] = min(max(step[0], -1.0), 1.0)
+            step[1] = min(max(step[1], -1.0), 1.0)
+            step[5] = min(max(step[5], -0.5), 0.5)
+            trial = p + step
+            # below 0.03 px the model does not see the blur any more
+            trial[5] = max(trial[5], math.log(0.03))
+            moved = abs(step[0]) + abs(step[1]) + abs(step[2])
+            if moved < tol_px and abs(trial[5] - p[5]) < 0.02:
+                break
+            cost_t = _normal_equations(trial, lo, hi, values, s, basis, far, module_px,
+                                       outer, quiet_px, box_a, box_b, quad, Nt, gt)
+            if cost_t < cost:
+                p[:] = trial
+                N[:] = Nt
+                g[:] = gt
+                cost = cost_t
+                lam *= 0.3
+            else:
+                lam *= 10.0
+        Nd[:] = N
+        Nd[2, 2] += 1.0 - quad
+        for j in range(6):
+            Nd[j, j] += 1e-12
+        inv = solve(Nd, np.eye(6)[:, :3].copy())
+        var = cost / max(hi - lo - 6.0, 1.0) * cov_scale
+        for a in range(3):
+            for b in range(3):
+                v = inv[a, b] * var
+                cov[k, a, b] = v if np.isfinite(v) else 0.0
+                if quad == 0.0 and (a == 2 or b == 2):
+                    cov[k, a, b] = 0.0
+        coef[k] = p[:3]
+        blur[k] = math.exp(p[5])
 
 
 def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides: int,
                    basis: np.ndarray, coef0: np.ndarray, far: np.ndarray,
                    module_px: np.ndarray, fit_order: np.ndarray, normal: np.ndarray, *,
                    outer: np.ndarray | None = None, quiet_px: np.ndarray | None = None,
-                   samples_per_px: float = 1.0, iterations: int = 4
+                   samples_per_px: float = 1.0, iterations: int = 4,
+                   blur0: np.ndarray | None = None, tol_px: float = 0.0,
+                   sides: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fit the blurred-step model (module docstring) to every side.
 
     The N samples of all S sides come as flat arrays, each side's samples together
-    (``side`` non-decreasing); only the samples to use are passed.
+    (``side`` non-decreasing); only the samples to use are passed. Each side is
+    solved on its own by damped Gauss-Newton (a compiled kernel).
 
     Args:
         values: (N,) linear intensities of the samples.
@@ -155,133 +334,60 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
         quiet_px: (N,) the quiet zone's width at each sample, pixels (with ``outer``).
         samples_per_px: sample density along the normal (for the covariance: samples
             closer than a pixel are not independent).
-        iterations: Gauss-Newton steps.
+        iterations: most Gauss-Newton steps.
+        blur0: (S,) the blur to start from, pixels (0.6 px without).
+        tol_px: a side stops early once a step moves its edge by less than this (and
+            its log blur by less than 0.02), pixels.
+        sides: optional (F,) int, the sides to fit (the others keep ``coef0``, ``blur0``
+            and a zero covariance).
 
     Returns:
         coef (S, 3) edge polynomial, cov (S, 3, 3) its covariance, blur (S,) pixels
         (the Gaussian part, beyond the pixel's own footprint).
     """
-    S = n_sides
-    rows = far.shape[1]
-    sid = np.asarray(side, dtype=np.intp)
-    # the normal equations are formed per side in a padded (S, P) layout
-    slot, P = side_slots(sid, S)
-    per_side = np.bincount(sid, minlength=S)
-    vals = np.asarray(values, dtype=np.float64)
-    sc = np.asarray(s, dtype=np.float64)
-    bas = np.asarray(basis, dtype=np.float64)
-    farc = np.asarray(far, dtype=np.float32)
-    modc = np.asarray(module_px, dtype=np.float32)
-    outc = None if outer is None else np.asarray(outer, dtype=np.float32)
-    quietc = None if quiet_px is None else np.asarray(quiet_px, dtype=np.float32)
-    with np.errstate(all="ignore"), warnings.catch_warnings():
-        warnings.simplefilter("ignore", RuntimeWarning)  # sides without samples: NaN
-        rel = sc - np.einsum("np,np->n", bas, coef0[sid])
-        A = side_median(vals, rel < -0.3, sid, slot, S, P)
-        B = side_median(vals, rel > 0.3, sid, slot, S, P)
-    p: np.ndarray = np.zeros((S, 6))  # edge polynomial (3), A, D, log w
-    p[:, :3] = coef0
-    p[:, 3] = np.nan_to_num(A)
-    p[:, 4] = np.nan_to_num(B) - np.nan_to_num(A)
-    p[:, 5] = np.log(0.6)
-    box_a = np.abs(normal[:, 0])[sid].astype(np.float32)
-    box_b = np.abs(normal[:, 1])[sid].astype(np.float32)
-    box_var = (box_a * box_a + box_b * box_b) / 12.0
-    lam: np.ndarray = np.full(S, 1e-3)
-    quad = (fit_order >= 3).astype(np.float64)
-    quad_c = quad[sid]
-    bas_t = np.ascontiguousarray(bas.T)
+    starts = np.searchsorted(np.asarray(side), np.arange(n_sides + 1)).astype(np.intp)
+    f64 = np.float64
+    none = np.zeros(0)
+    which = np.arange(n_sides) if sides is None else np.asarray(sides, np.intp)
+    # sides not fitted keep their start
+    coef = np.array(coef0, dtype=f64)
+    cov = np.zeros((n_sides, 3, 3))
+    blur = np.full(n_sides, 0.6) if blur0 is None else np.array(blur0, dtype=f64)
+    args = (np.ascontiguousarray(values, f64), np.ascontiguousarray(s, f64), starts,
+            np.ascontiguousarray(basis, f64), coef.copy(),
+            np.ascontiguousarray(far, f64), np.ascontiguousarray(module_px, f64),
+            np.ascontiguousarray(fit_order, np.intp), np.ascontiguousarray(normal, f64),
+            none if outer is None else np.ascontiguousarray(outer, f64),
+            none if quiet_px is None else np.ascontiguousarray(quiet_px, f64),
+            max(samples_per_px, 1.0), int(iterations), blur.copy(), float(tol_px))
+    # sides in runs of about equal sample counts, on the worker threads
+    in_run = split_even(which, starts[which + 1] - starts[which])
+    run_all(lambda part: _fit_sides(*args, part, coef, cov, blur), in_run)
+    return coef, cov, blur
 
-    def evaluate(p: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        # per-sample parameters, one contiguous column at a time (fast 1-D gathers)
-        ps = [np.take(col, sid) for col in np.ascontiguousarray(p.T)]
-        e = bas_t[0] * ps[0] + bas_t[1] * ps[1] + bas_t[2] * ps[2]
-        # the model is evaluated in float32 (its noise is far below the image's);
-        # the edge offset d is formed in float64 first so it keeps its precision
-        w = np.maximum(np.exp(ps[5]), 0.03).astype(np.float32)
-        d = (sc - e).astype(np.float32)
-        F, g1, gw = pixel_esf(d, w, box_a, box_b)
-        de = -g1
-        # a Gaussian of the same second moment is close enough for the other edges
-        w_eff = np.sqrt(w * w + box_var)
-        shrink = (w * w) / (w_eff * w_eff)
-        if outc is not None and quietc is not None:
-            # the known edge beyond the quiet zone, back to the border's colour
-            z = (d - quietc) / w_eff
-            val, pdf = norm_cdf_pdf(z)
-            F = F - outc * val
-            de = de + outc * (pdf / w_eff)
-            gw = gw + outc * (pdf * z * shrink)
-        for r in range(rows):
-            # the edge where code row r+1 begins, weighted by its change of colour
-            c = farc[:, r] - (farc[:, r - 1] if r else 0.0)
-            z = -(d + (r + 1) * modc) / w_eff
-            val, pdf = norm_cdf_pdf(z)
-            F = F + c * val
-            de = de + c * (pdf / w_eff)
-            gw = gw - c * (pdf * z * shrink)
-        D = ps[4].astype(np.float32)
-        res = vals - (ps[3] + D * F)
-        de = D * de
-        jac = np.empty((len(sid), 6), dtype=np.float32)
-        jac[:, :3] = de[:, None] * bas
-        jac[:, 2] *= quad_c
-        jac[:, 3] = 1.0
-        jac[:, 4] = F
-        jac[:, 5] = D * gw  # d/d log w
-        return res, jac
 
-    flat_index = sid * P + slot
-
-    def padded(jac: np.ndarray, res: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        Jp = np.zeros((S * P, 6))
-        Jp[flat_index] = jac
-        rp = np.zeros(S * P)
-        rp[flat_index] = res
-        return Jp.reshape(S, P, 6), rp.reshape(S, P)
-
-    def side_cost(res: np.ndarray) -> np.ndarray:
-        return np.bincount(sid, weights=res * res, minlength=S)
-
-    res, jac = evaluate(p)
-    cost = side_cost(res)
-    pad = np.zeros((S, 6, 6))
-    pad[:, 2, 2] = 1.0 - quad
-    for _ in range(iterations):
-        Jf, rf = padded(jac, res)
-        N = np.matmul(Jf.transpose(0, 2, 1), Jf) + pad
-        g = np.matmul(Jf.transpose(0, 2, 1), rf[..., None])[..., 0]
-        diag = np.einsum("sii->si", N)
-        Nd = N + (lam[:, None] * (diag + 1e-9))[:, :, None] * np.eye(6)
-        with np.errstate(all="ignore"):
-            step = np.linalg.solve(Nd, g[..., None])[..., 0]
-        step = np.nan_to_num(step)
-        step[:, :2] = np.clip(step[:, :2], -1.0, 1.0)
-        step[:, 5] = np.clip(step[:, 5], -0.5, 0.5)
-        trial = p + step
-        res_t, jac_t = evaluate(trial)
-        cost_t = side_cost(res_t)
-        better = cost_t < cost
-        p = np.where(better[:, None], trial, p)
-        bs = better[sid]
-        res = np.where(bs, res_t, res)
-        jac = np.where(bs[:, None], jac_t, jac)
-        cost = np.where(better, cost_t, cost)
-        lam = np.where(better, lam * 0.3, lam * 10.0)
-    Jf, _ = padded(jac, res)
-    N = np.matmul(Jf.transpose(0, 2, 1), Jf) + pad + 1e-12 * np.eye(6)
-    n_samples = per_side.astype(np.float64)
-    var = cost / np.maximum(n_samples - 6, 1.0)
-    with np.errstate(all="ignore"):
-        cov = np.linalg.inv(N)[:, :3, :3] * (var * max(samples_per_px, 1.0))[:, None, None]
-    cov = np.nan_to_num(cov)
-    cov[fit_order < 3, 2, :] = 0.0
-    cov[fit_order < 3, :, 2] = 0.0
-    return p[:, :3], cov, np.exp(p[:, 5])
+@njit(cache=True, error_model="numpy")
+def _far_cells(along: np.ndarray, same: np.ndarray, blur_modules: np.ndarray) -> np.ndarray:
+    """Kernel of :func:`far_cells` on flat (N,) positions and blurs."""
+    bits = same.shape[1]
+    out = np.empty(len(along))
+    for i in range(len(along)):
+        w = max(blur_modules[i], 1e-3)
+        # sum over cells j of other_j (Phi(x - (j+1)) - Phi(x - (j+2))), regrouped by
+        # boundary: only the boundaries where the colour changes need a CDF
+        acc = 0.0
+        before = 0.0  # the border itself: its own colour
+        for j in range(bits + 1):
+            other = 0.0 if j == bits or same[i, j] else 1.0
+            if other != before:
+                acc += (other - before) * norm_cdf_pdf((along[i] - (j + 1)) / w)[0]
+                before = other
+        out[i] = acc
+    return out
 
 
 def far_cells(along: np.ndarray, same: np.ndarray, blur_modules: np.ndarray) -> np.ndarray:
-    """(N, ...) share of the other colour in one code row behind the border, blurred along it.
+    """(N,) share of the other colour in one code row behind the border, blurred along it.
 
     Gaussian blur is separable, so behind a straight border the code cells'
     contribution at along-side position x is the sum over cells of the other
@@ -289,51 +395,11 @@ def far_cells(along: np.ndarray, same: np.ndarray, blur_modules: np.ndarray) -> 
     module docstring's model).
 
     Args:
-        along: (N, ...) position of each sample along its side, modules (0 .. bits + 2).
+        along: (N,) position of each sample along its side, modules (0 .. bits + 2).
         same: (N, bits) bool, per sample: the row's code cells (in side order)
             that share the border's colour.
-        blur_modules: (N, ...) blur of each sample's side, in modules along the side
-            (broadcast with ``along``).
+        blur_modules: (N,) blur of each sample's side, in modules along the side.
     """
-    bits = same.shape[1]
-    w = np.maximum(blur_modules, 1e-3)
-    far = np.zeros_like(along)
-    extra = (1,) * (along.ndim - 1)
-    # CDF at each cell boundary once; cell i spans boundaries i+1 .. i+2
-    left = phi_cdf((along - 1.0) / w)
-    for i in range(bits):
-        right = phi_cdf((along - (i + 2)) / w)
-        other = (~same[:, i]).astype(np.float64).reshape(-1, *extra)
-        far += other * (left - right)
-        left = right
-    return far
-
-
-def side_slots(side: np.ndarray, n_sides: int) -> tuple[np.ndarray, int]:
-    """Position of every sample within its side, and the most samples of any side.
-
-    Args:
-        side: (N,) int, non-decreasing side index of each sample.
-        n_sides: S.
-    """
-    count = np.bincount(side, minlength=n_sides)
-    first = np.concatenate([[0], np.cumsum(count)[:-1]])
-    return np.arange(len(side)) - first[side], max(int(count.max(initial=0)), 1)
-
-
-def side_median(x: np.ndarray, use: np.ndarray, sid: np.ndarray, slot: np.ndarray,
-                S: int, P: int) -> np.ndarray:
-    """(S,) median of the samples x (N,) of each side where ``use`` (N,); NaN for none.
-
-    ``sid``, ``slot`` and ``P`` as from :func:`side_slots`.
-
-    Like ``np.nanmedian`` of a padded (S, P) layout (the mean of the two middle
-    values for an even count), without its masked-array overhead.
-    """
-    pad = np.full((S, P), np.inf)
-    pad[sid[use], slot[use]] = x[use]
-    pad.sort(axis=1)
-    count = np.bincount(sid[use], minlength=S)
-    lo = np.take_along_axis(pad, np.maximum((count - 1) // 2, 0)[:, None], 1)[:, 0]
-    hi = np.take_along_axis(pad, np.minimum(count // 2, P - 1)[:, None], 1)[:, 0]
-    return np.where(count > 0, 0.5 * (lo + hi), np.nan)
+    return _far_cells(np.ascontiguousarray(along, np.float64), np.ascontiguousarray(same, bool),
+                      np.ascontiguousarray(np.broadcast_to(blur_modules, np.shape(along)),
+                                           np.float64))

@@ -12,12 +12,11 @@ A false decode in clutter fails (b) or (c); a wrong id inside the board fails
 
 from __future__ import annotations
 
-import warnings
-
 import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect.centers import diagonal_centers
+from artcal_ros.core.detect.linalg import nanmedian_rows
 from artcal_ros.core.detect.patterns import blurred_patterns
 from artcal_ros.core.detect.sampling import bilinear, cell_means, module_grid
 from artcal_ros.core.homography import apply_h, homographies, module_homographies, shortest_sides
@@ -69,10 +68,7 @@ def sides_are_edges(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, bits
               & (pout[..., 1] <= h - 1))
         seen[:, k] = on.mean(axis=1)
         vin = np.median(bilinear(lin, pin[..., 0], pin[..., 1]), axis=1)
-        vout = np.where(on, bilinear(lin, pout[..., 0], pout[..., 1]), np.nan)
-        with warnings.catch_warnings():
-            warnings.simplefilter("ignore", RuntimeWarning)  # a side wholly off the image
-            vout = np.nanmedian(vout, axis=1)
+        vout = nanmedian_rows(np.where(on, bilinear(lin, pout[..., 0], pout[..., 1]), np.nan))
         contrast[:, k] = np.where(dark, vout - vin, vin - vout)
     clean = np.nan_to_num(contrast, nan=-1.0)
     strongest = clean.max(axis=1, keepdims=True)
