@@ -1,6 +1,7 @@
 """``make bench``: every benchmark, in turn, each against plain OpenCV in the same run.
 
-    python -m bench            # the full set (about 40 minutes on 2 cores)
+    python -m bench            # the full set (about 80 minutes on 2 cores, 45 of them
+                               # bench.solve_time)
     python -m bench --quick    # smaller versions of each (a few minutes)
 
 The figures go to stdout as tables; docs/benchmarks.md records a full run.
@@ -22,6 +23,7 @@ def main(argv: list[str] | None = None) -> int:
     steps = [
         ("detection", ["bench.detection", *quick]),
         ("calibration", ["bench.calibration", *quick]),
+        ("solve time", ["bench.solve_time", *quick]),
         ("real photographs", ["bench.real_photos", "--markdown"]),
         # The real node over DDS; the full runs take ~10 minutes, --quick one short run.
         ("node under load", ["bench.node_load", *quick]),
