@@ -16,6 +16,7 @@ from numba import njit
 
 from artcal_ros.core.detect.lens import Lens
 from artcal_ros.core.detect.linalg import solve
+from artcal_ros.core.detect.workers import run_all, split_even
 from artcal_ros.core.homography import module_homographies
 
 
@@ -305,18 +306,30 @@ def module_geometry_at(corners: np.ndarray, pts: np.ndarray, side: np.ndarray,
     """
     pts = np.ascontiguousarray(pts, dtype=np.float64)
     side = np.ascontiguousarray(side, dtype=np.intp)
-    if lens is None:
-        H = module_homographies(corners, bits)
-        mod, inner = _module_points(np.linalg.inv(H), H, side, pts)
-    else:
-        M = len(corners)
-        H = module_homographies(lens.undistort(corners.reshape(-1, 2)).reshape(M, 4, 2), bits)
-        mod, inner = _module_points(np.linalg.inv(H), H, side, lens.undistort(pts))
-        inner = lens.distort(inner)
-    return _along_width(mod, inner, pts, side, np.ascontiguousarray(n, np.float64), bits + 2.0)
+    n = np.ascontiguousarray(n, np.float64)
+    M = len(corners)
+    H = module_homographies(
+        corners if lens is None
+        else lens.undistort(corners.reshape(-1, 2)).reshape(M, 4, 2), bits)
+    Hinv = np.linalg.inv(H)
+    along = np.empty(len(pts))
+    width = np.empty(len(pts))
+
+    def part(run: np.ndarray) -> None:
+        # points in consecutive runs on the worker threads (every step is per point)
+        sl = slice(int(run[0]), int(run[-1]) + 1)
+        p = pts[sl]
+        mod, inner = _module_points(Hinv, H, side[sl], p if lens is None else lens.undistort(p))
+        if lens is not None:
+            inner = lens.distort(inner)
+        along[sl], width[sl] = _along_width(mod, inner, p, side[sl], n, bits + 2.0)
+
+    if len(pts):
+        run_all(part, split_even(np.arange(len(pts)), np.ones(len(pts))))
+    return along, width
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _module_points(Hinv: np.ndarray, H: np.ndarray, side: np.ndarray, pts: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Module coordinates (N, 2) of points (N, 2) on sides (N,), and the image of the point
@@ -340,7 +353,7 @@ def _module_points(Hinv: np.ndarray, H: np.ndarray, side: np.ndarray, pts: np.nd
     return mod, inner
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _along_width(mod: np.ndarray, inner: np.ndarray, pts: np.ndarray, side: np.ndarray,
                  n: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
     """Position along each side, modules (in side direction), and module width, pixels."""

@@ -366,28 +366,30 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
     return coef, cov, blur
 
 
-@njit(cache=True, error_model="numpy")
-def _far_cells(along: np.ndarray, same: np.ndarray, blur_modules: np.ndarray) -> np.ndarray:
-    """Kernel of :func:`far_cells` on flat (N,) positions and blurs."""
-    bits = same.shape[1]
-    out = np.empty(len(along))
+@njit(cache=True, error_model="numpy", nogil=True)
+def _far_cells(along: np.ndarray, side: np.ndarray, same: np.ndarray, blur_modules: np.ndarray,
+               out: np.ndarray) -> None:
+    """Kernel of :func:`far_cells`, into out (N, R) for the points given (a run of them)."""
+    bits = same.shape[2]
     for i in range(len(along)):
-        w = max(blur_modules[i], 1e-3)
-        # sum over cells j of other_j (Phi(x - (j+1)) - Phi(x - (j+2))), regrouped by
-        # boundary: only the boundaries where the colour changes need a CDF
-        acc = 0.0
-        before = 0.0  # the border itself: its own colour
-        for j in range(bits + 1):
-            other = 0.0 if j == bits or same[i, j] else 1.0
-            if other != before:
-                acc += (other - before) * norm_cdf_pdf((along[i] - (j + 1)) / w)[0]
-                before = other
-        out[i] = acc
-    return out
+        k = side[i]
+        w = max(blur_modules[k], 1e-3)
+        for r in range(same.shape[1]):
+            # sum over cells j of other_j (Phi(x - (j+1)) - Phi(x - (j+2))), regrouped by
+            # boundary: only the boundaries where the colour changes need a CDF
+            acc = 0.0
+            before = 0.0  # the border itself: its own colour
+            for j in range(bits + 1):
+                other = 0.0 if j == bits or same[k, r, j] else 1.0
+                if other != before:
+                    acc += (other - before) * norm_cdf_pdf((along[i] - (j + 1)) / w)[0]
+                    before = other
+            out[i, r] = acc
 
 
-def far_cells(along: np.ndarray, same: np.ndarray, blur_modules: np.ndarray) -> np.ndarray:
-    """(N,) share of the other colour in one code row behind the border, blurred along it.
+def far_cells(along: np.ndarray, side: np.ndarray, same: np.ndarray,
+              blur_modules: np.ndarray) -> np.ndarray:
+    """(N, R) share of the other colour in each of R code rows behind the border, blurred along it.
 
     Gaussian blur is separable, so behind a straight border the code cells'
     contribution at along-side position x is the sum over cells of the other
@@ -396,10 +398,21 @@ def far_cells(along: np.ndarray, same: np.ndarray, blur_modules: np.ndarray) -> 
 
     Args:
         along: (N,) position of each sample along its side, modules (0 .. bits + 2).
-        same: (N, bits) bool, per sample: the row's code cells (in side order)
-            that share the border's colour.
-        blur_modules: (N,) blur of each sample's side, in modules along the side.
+        side: (N,) int, each sample's side.
+        same: (S, R, bits) bool, per side and code row: the cells (in side order) that
+            share the border's colour.
+        blur_modules: (S,) blur of each side, in modules along the side.
     """
-    return _far_cells(np.ascontiguousarray(along, np.float64), np.ascontiguousarray(same, bool),
-                      np.ascontiguousarray(np.broadcast_to(blur_modules, np.shape(along)),
-                                           np.float64))
+    along = np.ascontiguousarray(along, np.float64)
+    side = np.ascontiguousarray(side, np.intp)
+    same = np.ascontiguousarray(same, bool)
+    blur = np.ascontiguousarray(blur_modules, np.float64)
+    out = np.empty((len(along), same.shape[1]))
+
+    def part(run: np.ndarray) -> None:
+        sl = slice(int(run[0]), int(run[-1]) + 1)
+        _far_cells(along[sl], side[sl], same, blur, out[sl])
+
+    if len(along):
+        run_all(part, split_even(np.arange(len(along)), np.ones(len(along))))
+    return out
