@@ -15,7 +15,7 @@ import numpy as np
 from numba import njit
 
 from artcal_ros.core.detect.lens import Lens
-from artcal_ros.core.detect.linalg import solve
+from artcal_ros.core.detect.linalg import solve, sort_small
 from artcal_ros.core.detect.workers import run_all, split_even
 from artcal_ros.core.homography import module_homographies
 
@@ -133,22 +133,25 @@ def _robust_fit(t: np.ndarray, s: np.ndarray, valid: np.ndarray, length: np.ndar
     for k in range(S):
         for j in range(K):
             tau = 2.0 * t[k, j] / length[k] - 1.0
-            A[j, 0], A[j, 1] = 1.0, tau
+            A[j, 0] = 1.0
+            A[j, 1] = tau
             A[j, 2] = tau * tau - 1.0 / 3.0 if curved[k] else 0.0
             w[j] = 1.0 if valid[k, j] else 0.0
             obs[j] = s[k, j] if valid[k, j] else 0.0
-        c: np.ndarray = np.zeros(3)
+        c0 = c1 = c2 = 0.0
         for _ in range(iterations):
             _weighted_normal(A, w, obs, curved[k], N, rhs)
-            c = solve(N, rhs)[:, 0]
+            sol = solve(N, rhs)
+            c0, c1, c2 = sol[0, 0], sol[1, 0], sol[2, 0]
             m = 0
             for j in range(K):
-                res[j] = obs[j] - (A[j, 0] * c[0] + A[j, 1] * c[1] + A[j, 2] * c[2])
+                res[j] = obs[j] - (A[j, 0] * c0 + A[j, 1] * c1 + A[j, 2] * c2)
                 if w[j] > 0:
                     buf[m] = abs(res[j])
                     m += 1
             # robust sigma from the median absolute residual (the upper middle value)
-            med = np.sort(buf[:m])[m // 2] if m > 0 else 0.0
+            sort_small(buf, m)
+            med = buf[m // 2] if m > 0 else 0.0
             scale = max(1.4826 * med, min_sigma)
             for j in range(K):
                 w[j] = 1.0 if (valid[k, j] and abs(res[j]) <= reject * scale) else 0.0
@@ -159,9 +162,12 @@ def _robust_fit(t: np.ndarray, s: np.ndarray, valid: np.ndarray, length: np.ndar
             sq += w[j] * res[j] * res[j]
         var = sq / max(n_used - (3.0 if curved[k] else 2.0), 1.0)
         _weighted_normal(A, w, obs, curved[k], N, rhs)
-        inv = solve(N, np.eye(3))
+        unit = np.zeros((3, 3))
         for p in range(3):
-            coef[k, p] = c[p]
+            unit[p, p] = 1.0
+        inv = solve(N, unit)
+        coef[k, 0], coef[k, 1], coef[k, 2] = c0, c1, c2
+        for p in range(3):
             for q in range(3):
                 cov[k, p, q] = inv[p, q] * var
         if not curved[k]:
@@ -170,7 +176,7 @@ def _robust_fit(t: np.ndarray, s: np.ndarray, valid: np.ndarray, length: np.ndar
     return coef, cov, count
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _weighted_normal(A: np.ndarray, w: np.ndarray, obs: np.ndarray, curved: bool,
                      N: np.ndarray, rhs: np.ndarray) -> None:
     """N (3, 3) = A^T W A (+ an identity row for an unused parabola term, + a tiny ridge),
@@ -214,7 +220,7 @@ def intersect_sides(model: SideModel, a: np.ndarray, u: np.ndarray, n: np.ndarra
     return corner.reshape(M, 4, 2), sigma.reshape(M, 4)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _point_tangent(coef: np.ndarray, length: np.ndarray, curved: np.ndarray, a: np.ndarray,
                    u: np.ndarray, n: np.ndarray, k: int, t: float
                    ) -> tuple[float, float, float, float]:
@@ -231,7 +237,7 @@ def _point_tangent(coef: np.ndarray, length: np.ndarray, curved: np.ndarray, a: 
             dx / norm, dy / norm)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _offset_var(cov: np.ndarray, length: np.ndarray, curved: np.ndarray, k: int,
                 t: float) -> float:
     """Variance of side k's fitted normal offset at t, pixels^2."""
@@ -370,7 +376,7 @@ def _along_width(mod: np.ndarray, inner: np.ndarray, pts: np.ndarray, side: np.n
     return along, width
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _apply(H: np.ndarray, x: float, y: float) -> tuple[float, float]:
     """A homography H (3, 3) applied to one point."""
     w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
