@@ -31,9 +31,10 @@ def homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 
 
 def apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """Apply (M, 3, 3) homographies to points (M, P, 2) -> (M, P, 2) (broadcast views welcome)."""
+    """Apply (M, 3, 3) homographies to points (M, P, 2) -> (M, P, 2)."""
     H = np.asarray(H, dtype=np.float64)
-    pts = np.asarray(pts, dtype=np.float64)
+    # one compiled signature: broadcast views are copied to plain arrays
+    pts = np.ascontiguousarray(pts, dtype=np.float64)
     return _apply_kernel(H, pts)
 
 

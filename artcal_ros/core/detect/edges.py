@@ -309,10 +309,8 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         along, m_s = module_geometry_at(corners, np.stack([px_c, py_c], axis=-1), sid, n,
                                         bits, lens)
         if rows:
-            blur_modules = (blur * (bits + 2) / model.length)[sid]
-            same = np.asarray(inner_same, bool).reshape(S, rows, bits)[sid]
-            far = np.stack([far_cells(along, same[:, r], blur_modules)
-                            for r in range(rows)], axis=-1)
+            far = far_cells(along, sid, np.asarray(inner_same, bool).reshape(S, rows, bits),
+                            blur * (bits + 2) / model.length)
         else:
             far = np.zeros((len(sid), 1), dtype=np.float32)
         fit = partial(fit_step_model, values, s_c, sid, S, basis, model.coef, far, m_s,

@@ -59,7 +59,7 @@ class DivisionLens:
                                  self.lam, self.lam2, self.lam3)
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def division_undistort(pts: np.ndarray, center: np.ndarray, scale: float, lam: float,
                        lam2: float, lam3: float) -> np.ndarray:
     """(N, 2) image pixels -> straightened pixels under a division model (see DivisionLens)."""
@@ -73,7 +73,7 @@ def division_undistort(pts: np.ndarray, center: np.ndarray, scale: float, lam: f
     return out
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _division_distort(pts: np.ndarray, center: np.ndarray, scale: float, lam: float,
                       lam2: float, lam3: float) -> np.ndarray:
     """(N, 2) straightened pixels -> image pixels (see :meth:`DivisionLens.distort`)."""

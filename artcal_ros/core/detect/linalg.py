@@ -1,15 +1,19 @@
-"""Small numerics: a dense solve for the compiled kernels (numba has no LAPACK without
-SciPy), and row medians over a mask."""
+"""Small numerics: a dense solve and a sort for the compiled kernels, and row medians.
+
+The kernels use these rather than numba's ``np.linalg`` (it needs SciPy's LAPACK) and
+``np.sort`` / ``np.median`` (their generic implementations took most of the ~45 s of
+CPU the kernels needed to compile the first time).
+"""
 
 from __future__ import annotations
 
 import numpy as np
 from numba import njit
 
-__all__ = ["nanmedian_rows", "solve"]
+__all__ = ["nanmedian_rows", "solve", "sort_small"]
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
     """x with A x = b for a small square A (n, n) and b (n, k): LU with partial pivoting.
 
@@ -43,6 +47,23 @@ def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
                 acc -= M[c, k] * x[k, j]
             x[c, j] = acc / M[c, c]
     return x
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def sort_small(x: np.ndarray, n: int) -> None:
+    """Sort the first n entries of a short 1-D array in place, ascending (Shell sort)."""
+    gap = 1
+    while gap < n // 3:
+        gap = 3 * gap + 1
+    while gap > 0:
+        for i in range(gap, n):
+            v = x[i]
+            j = i
+            while j >= gap and x[j - gap] > v:
+                x[j] = x[j - gap]
+                j -= gap
+            x[j] = v
+        gap //= 3
 
 
 def nanmedian_rows(x: np.ndarray) -> np.ndarray:

@@ -25,7 +25,7 @@ from artcal_ros.core.detect.workers import run_all, split_even
 __all__ = ["coarse_offsets", "gather_samples"]
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _bilinear_at(img: np.ndarray, x: float, y: float) -> float:
     """One bilinear sample of img (H, W) at (x, y), clamped to the image (as ``bilinear``)."""
     h, w = img.shape

@@ -15,7 +15,8 @@ import numpy as np
 from numba import njit
 
 from artcal_ros.core.detect.lens import Lens
-from artcal_ros.core.detect.linalg import solve
+from artcal_ros.core.detect.linalg import solve, sort_small
+from artcal_ros.core.detect.workers import run_all, split_even
 from artcal_ros.core.homography import module_homographies
 
 
@@ -132,22 +133,25 @@ def _robust_fit(t: np.ndarray, s: np.ndarray, valid: np.ndarray, length: np.ndar
     for k in range(S):
         for j in range(K):
             tau = 2.0 * t[k, j] / length[k] - 1.0
-            A[j, 0], A[j, 1] = 1.0, tau
+            A[j, 0] = 1.0
+            A[j, 1] = tau
             A[j, 2] = tau * tau - 1.0 / 3.0 if curved[k] else 0.0
             w[j] = 1.0 if valid[k, j] else 0.0
             obs[j] = s[k, j] if valid[k, j] else 0.0
-        c: np.ndarray = np.zeros(3)
+        c0 = c1 = c2 = 0.0
         for _ in range(iterations):
             _weighted_normal(A, w, obs, curved[k], N, rhs)
-            c = solve(N, rhs)[:, 0]
+            sol = solve(N, rhs)
+            c0, c1, c2 = sol[0, 0], sol[1, 0], sol[2, 0]
             m = 0
             for j in range(K):
-                res[j] = obs[j] - (A[j, 0] * c[0] + A[j, 1] * c[1] + A[j, 2] * c[2])
+                res[j] = obs[j] - (A[j, 0] * c0 + A[j, 1] * c1 + A[j, 2] * c2)
                 if w[j] > 0:
                     buf[m] = abs(res[j])
                     m += 1
             # robust sigma from the median absolute residual (the upper middle value)
-            med = np.sort(buf[:m])[m // 2] if m > 0 else 0.0
+            sort_small(buf, m)
+            med = buf[m // 2] if m > 0 else 0.0
             scale = max(1.4826 * med, min_sigma)
             for j in range(K):
                 w[j] = 1.0 if (valid[k, j] and abs(res[j]) <= reject * scale) else 0.0
@@ -158,9 +162,12 @@ def _robust_fit(t: np.ndarray, s: np.ndarray, valid: np.ndarray, length: np.ndar
             sq += w[j] * res[j] * res[j]
         var = sq / max(n_used - (3.0 if curved[k] else 2.0), 1.0)
         _weighted_normal(A, w, obs, curved[k], N, rhs)
-        inv = solve(N, np.eye(3))
+        unit = np.zeros((3, 3))
         for p in range(3):
-            coef[k, p] = c[p]
+            unit[p, p] = 1.0
+        inv = solve(N, unit)
+        coef[k, 0], coef[k, 1], coef[k, 2] = c0, c1, c2
+        for p in range(3):
             for q in range(3):
                 cov[k, p, q] = inv[p, q] * var
         if not curved[k]:
@@ -169,7 +176,7 @@ def _robust_fit(t: np.ndarray, s: np.ndarray, valid: np.ndarray, length: np.ndar
     return coef, cov, count
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _weighted_normal(A: np.ndarray, w: np.ndarray, obs: np.ndarray, curved: bool,
                      N: np.ndarray, rhs: np.ndarray) -> None:
     """N (3, 3) = A^T W A (+ an identity row for an unused parabola term, + a tiny ridge),
@@ -213,7 +220,7 @@ def intersect_sides(model: SideModel, a: np.ndarray, u: np.ndarray, n: np.ndarra
     return corner.reshape(M, 4, 2), sigma.reshape(M, 4)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _point_tangent(coef: np.ndarray, length: np.ndarray, curved: np.ndarray, a: np.ndarray,
                    u: np.ndarray, n: np.ndarray, k: int, t: float
                    ) -> tuple[float, float, float, float]:
@@ -230,7 +237,7 @@ def _point_tangent(coef: np.ndarray, length: np.ndarray, curved: np.ndarray, a: 
             dx / norm, dy / norm)
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _offset_var(cov: np.ndarray, length: np.ndarray, curved: np.ndarray, k: int,
                 t: float) -> float:
     """Variance of side k's fitted normal offset at t, pixels^2."""
@@ -305,18 +312,30 @@ def module_geometry_at(corners: np.ndarray, pts: np.ndarray, side: np.ndarray,
     """
     pts = np.ascontiguousarray(pts, dtype=np.float64)
     side = np.ascontiguousarray(side, dtype=np.intp)
-    if lens is None:
-        H = module_homographies(corners, bits)
-        mod, inner = _module_points(np.linalg.inv(H), H, side, pts)
-    else:
-        M = len(corners)
-        H = module_homographies(lens.undistort(corners.reshape(-1, 2)).reshape(M, 4, 2), bits)
-        mod, inner = _module_points(np.linalg.inv(H), H, side, lens.undistort(pts))
-        inner = lens.distort(inner)
-    return _along_width(mod, inner, pts, side, np.ascontiguousarray(n, np.float64), bits + 2.0)
+    n = np.ascontiguousarray(n, np.float64)
+    M = len(corners)
+    H = module_homographies(
+        corners if lens is None
+        else lens.undistort(corners.reshape(-1, 2)).reshape(M, 4, 2), bits)
+    Hinv = np.linalg.inv(H)
+    along = np.empty(len(pts))
+    width = np.empty(len(pts))
+
+    def part(run: np.ndarray) -> None:
+        # points in consecutive runs on the worker threads (every step is per point)
+        sl = slice(int(run[0]), int(run[-1]) + 1)
+        p = pts[sl]
+        mod, inner = _module_points(Hinv, H, side[sl], p if lens is None else lens.undistort(p))
+        if lens is not None:
+            inner = lens.distort(inner)
+        along[sl], width[sl] = _along_width(mod, inner, p, side[sl], n, bits + 2.0)
+
+    if len(pts):
+        run_all(part, split_even(np.arange(len(pts)), np.ones(len(pts))))
+    return along, width
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _module_points(Hinv: np.ndarray, H: np.ndarray, side: np.ndarray, pts: np.ndarray
                    ) -> tuple[np.ndarray, np.ndarray]:
     """Module coordinates (N, 2) of points (N, 2) on sides (N,), and the image of the point
@@ -340,7 +359,7 @@ def _module_points(Hinv: np.ndarray, H: np.ndarray, side: np.ndarray, pts: np.nd
     return mod, inner
 
 
-@njit(cache=True, error_model="numpy")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _along_width(mod: np.ndarray, inner: np.ndarray, pts: np.ndarray, side: np.ndarray,
                  n: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
     """Position along each side, modules (in side direction), and module width, pixels."""
@@ -357,7 +376,7 @@ def _along_width(mod: np.ndarray, inner: np.ndarray, pts: np.ndarray, side: np.n
     return along, width
 
 
-@njit(cache=True, error_model="numpy", inline="always")
+@njit(cache=True, error_model="numpy", nogil=True)
 def _apply(H: np.ndarray, x: float, y: float) -> tuple[float, float]:
     """A homography H (3, 3) applied to one point."""
     w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
