@@ -266,6 +266,9 @@ class ViewCollector:
         gx, gy = COVERAGE_GRID
         self._counts = np.zeros((gy, gx), np.int64)
         self._image_size: tuple[int, int] | None = None
+        # views taken on approximate markers, waiting for their precise detection
+        self._pending: dict[int, tuple[Detections, ViewGeometry]] = {}
+        self._next_ticket = 1
 
     @property
     def config(self) -> CoverageConfig:
@@ -291,6 +294,7 @@ class ViewCollector:
         self._geometry = []
         self._counts = np.zeros_like(self._counts)
         self._image_size = None
+        self._pending = {}
 
     # --- accumulation -------------------------------------------------------------
     def _is_new(self, dets: Detections, geometry: ViewGeometry, cfg: CoverageConfig) -> bool:
@@ -301,8 +305,9 @@ class ViewCollector:
         w, h = dets.image_size
         limit = cfg.novelty * math.hypot(w, h)
         turn = 0.5 * cfg.tilt_deg
-        for old, old_geometry in zip(reversed(self._views), reversed(self._geometry),
-                                     strict=True):
+        others = [*zip(reversed(self._views), reversed(self._geometry), strict=True),
+                  *self._pending.values()]
+        for old, old_geometry in others:
             shared, i_new, i_old = np.intersect1d(dets.ids, old.ids, return_indices=True)
             if len(shared) < 0.5 * len(dets):
                 continue
@@ -337,6 +342,51 @@ class ViewCollector:
             self._geometry.append(geometry)
             self._counts += geometry.cells.reshape(self._counts.shape)
             return True
+
+    def reserve(self, dets: Detections) -> int | None:
+        """Hold a place for a view seen on approximate markers; a ticket, or None if not new.
+
+        A live stream finds the markers of every frame approximately (tracked) and only
+        some precisely. A frame whose approximate markers would make a new view is held
+        here until :meth:`settle` brings its precise detections, so the frames after it
+        that show the same view are not measured again. A held view counts as a view for
+        novelty only: not in :meth:`snapshot`, the readiness or the coverage.
+        """
+        cfg = self.config
+        if len(dets) < cfg.min_markers:
+            return None
+        size = (int(dets.image_size[0]), int(dets.image_size[1]))
+        geometry = view_geometry(*solve_points(dets, self.board, cfg.points), size)
+        with self._lock:
+            if len(self._views) + len(self._pending) >= cfg.max_stored \
+                    or not self._is_new(dets, geometry, cfg):
+                return None
+            ticket = self._next_ticket
+            self._next_ticket += 1
+            self._pending[ticket] = (dets, geometry)
+            return ticket
+
+    def settle(self, ticket: int, dets: Detections) -> bool:
+        """Replace a held view by its precise detections; whether they were kept.
+
+        They are offered as :meth:`add` does. A ticket no longer held (a reset came in
+        between) keeps nothing.
+        """
+        with self._lock:
+            if self._pending.pop(ticket, None) is None:
+                return False
+        return self.add(dets)
+
+    def release(self, ticket: int) -> None:
+        """Give up a held view (its precise detection failed or was never made)."""
+        with self._lock:
+            self._pending.pop(ticket, None)
+
+    @property
+    def pending(self) -> int:
+        """Views held by :meth:`reserve` and not yet settled."""
+        with self._lock:
+            return len(self._pending)
 
     # --- queries ------------------------------------------------------------------
     @property

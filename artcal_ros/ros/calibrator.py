@@ -10,10 +10,14 @@ Interface (names relative, remappable):
   services    ~/calibrate, ~/reset (std_srvs/Trigger)
   calls       set_camera_info      (sensor_msgs/SetCameraInfo) when ``commit`` is true
 
-Threads: image callbacks only hand the message to a keep-latest worker
-(detection runs there, on the newest frame; frames replaced while it is busy
-are counted as dropped). ``~/calibrate`` runs the solve on its own thread and
-waits for it in a reentrant callback, so images keep flowing meanwhile.
+Threads: image callbacks only hand the message to a keep-latest worker, the fast tier
+of :class:`~artcal_ros.core.live.LiveDetection`: it tracks the markers into the newest
+frame in a few milliseconds, draws the overlay, and queues the frames that show a new
+view (frames replaced while it is busy are counted as dropped). Precise detection runs
+on a background thread on those queued frames (and now and then on the newest one); only
+its detections become views. ``~/calibrate`` waits for the queued views, runs the solve
+on its own thread and waits for it in a reentrant callback, so images keep flowing
+meanwhile.
 """
 
 from __future__ import annotations
@@ -40,7 +44,9 @@ from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate.session import SolveOutcome, busy_threads, run_solve
 from artcal_ros.core.camera_info import as_camera_info
 from artcal_ros.core.coverage import CoverageConfig, ViewCollector
+from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
+from artcal_ros.core.live import LiveDetection
 from artcal_ros.core.overlay import render_heat_map, render_overlay
 from artcal_ros.core.params import ParamValue
 from artcal_ros.ros import msgs
@@ -78,6 +84,9 @@ class CalibratorNode(Node):
         self.collector = ViewCollector(
             self.board, CoverageConfig(min_views=int(self.params["min_views"]),
                                        points=str(self.params["points"])))
+        self.live = LiveDetection(self.board, self.detector.detect, self.collector,
+                                  on_measured=self._on_measured,
+                                  on_error=self._on_worker_error)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.counters = Counters()
         self.frame_id = "camera"
@@ -137,20 +146,23 @@ class CalibratorNode(Node):
                                       throttle_duration_sec=5.0)
             return
         self.frame_id = msg.header.frame_id or self.frame_id
-        dets = self.detector.detect(image)
-        self.counters.frame_processed(len(dets))
-        kept = self.collector.add(dets)
-        if kept:
-            self._publish_coverage()
+        frame = self.live.offer(image)
+        self.counters.frame_processed(len(frame.markers))
         if self._stopping.is_set() or self.overlay_pub.get_subscription_count() == 0:
             return
         snap = self.collector.snapshot()  # counts and text of one and the same collection
-        picture = render_overlay(image, dets, snap.counts, snap.readiness, kept=kept,
+        picture = render_overlay(image, frame.markers, snap.counts, snap.readiness,
+                                 kept=frame.queued,
                                  max_width=int(self.params["overlay.max_width"]))
         overlay = msgs.bgr8_image(picture, msgs.header(msg.header.stamp, self.frame_id))
         with self._output_lock:
             if not self._closed:
                 self.overlay_pub.publish(overlay)
+
+    def _on_measured(self, dets: Detections, kept: bool) -> None:
+        # Background tier: a precise detection; a new view changes the heat map.
+        if kept:
+            self._publish_coverage()
 
     def _on_worker_error(self, error: BaseException) -> None:
         self.counters.frame_failed()
@@ -175,10 +187,13 @@ class CalibratorNode(Node):
         # Dropped frames are read before the counts: every frame the worker dropped was
         # counted as seen first, so processed + dropped never exceeds seen in one report.
         dropped = self.worker.dropped
+        live = self.live.counts()
         self.diag_pub.publish(diagnostic_array(
             self.get_name(), str(self.params["camera_name"]), self.counters.report(),
             dropped, self.collector.readiness(), self.last_summary,
-            self.get_clock().now().to_msg()))
+            self.get_clock().now().to_msg(),
+            extra={"frames measured": live.measured, "frames queued": live.queued,
+                   "views refused (queue full)": live.refused}))
 
     # --- services -----------------------------------------------------------------
     def _on_calibrate(self, request: Trigger.Request, response: Trigger.Response
@@ -206,6 +221,8 @@ class CalibratorNode(Node):
         return response
 
     def _calibrate(self) -> SolveOutcome:
+        # The views already seen but still in precise detection belong to this solve.
+        waited = self.live.wait_idle(timeout=10.0, stopping=self._stopping)
         # One snapshot: separate reads could pair the views with another collection's size
         # (or none) when a ~/reset or a new image size comes in between.
         snap = self.collector.snapshot()
@@ -216,6 +233,9 @@ class CalibratorNode(Node):
         self.get_logger().info(f"solving from {len(views)} views ({readiness.summary()})")
         outcome = run_solve(views, self.board, size, self.params, readiness,
                             stopping=self._stopping)
+        if not waited:
+            outcome = replace(outcome, message=f"{outcome.message} ({self.collector.pending} "
+                              "views still in detection were left out)")
         if outcome.result is None:
             return outcome
         stamp = self.get_clock().now().to_msg()
@@ -249,6 +269,7 @@ class CalibratorNode(Node):
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response
                   ) -> Trigger.Response:
+        self.live.reset()
         n = self.collector.reset()
         self._publish_coverage()
         response.success = True
@@ -280,6 +301,7 @@ class CalibratorNode(Node):
         with self._output_lock:  # waits for a publish in progress
             self._closed = True
         self.worker.stop(timeout=0.5)
+        self.live.stop(timeout=0.5)
 
 
 def main(args: list[str] | None = None) -> int:
@@ -312,11 +334,10 @@ def _exit_status_when_threads_done(status: int, timeout: float = 2.0) -> int:
     process ("exception not rethrown"); leaving with os._exit skips that finalization.
     """
     deadline = time.monotonic() + timeout
-    for thread in [*busy_threads(), *(t for t in threading.enumerate()
-                                      if t.name == "detect")]:
+    names = ("detect", "detect-precise")
+    for thread in [*busy_threads(), *(t for t in threading.enumerate() if t.name in names)]:
         thread.join(max(0.0, deadline - time.monotonic()))
-    if busy_threads() or any(t.name == "detect" and t.is_alive()
-                             for t in threading.enumerate()):
+    if busy_threads() or any(t.name in names and t.is_alive() for t in threading.enumerate()):
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(status)

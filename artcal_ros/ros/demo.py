@@ -1,8 +1,9 @@
 """``make demo``: replay the sample bag into the real calibrator node over DDS and calibrate.
 
 Starts the calibrator and replay nodes as separate processes on a private DDS domain
-(random ROS_DOMAIN_ID, localhost only), watches /diagnostics until enough views are
-collected, calls ``~/calibrate``, and prints the one-line summary, the published
+(random ROS_DOMAIN_ID, localhost only), replays the bag once at its recorded speed,
+watches /diagnostics until the recording has been played and every view it offered is
+measured, calls ``~/calibrate``, and prints the one-line summary, the published
 CameraInfo and the calibration file's path. Nothing is written outside ``--out``.
 
     python -m artcal_ros.ros.demo [--bag bags/sample] [--params config/calibrator.yaml]
@@ -32,7 +33,6 @@ PACKAGE = "artcal_ros"
 SAMPLE_BAG = Path("bags") / "sample"
 PARAMS_FILE = Path("config") / "calibrator.yaml"
 IMAGE_TYPE = "sensor_msgs/msg/Image"
-DETECT_S = 0.7  # a generous detection time per frame on a small machine, seconds
 
 
 class DemoError(Exception):
@@ -143,7 +143,7 @@ def _compare_with_truth(bag: Path, yaml_path: Path) -> None:
 
 
 def run(bag: Path, params_file: Path, out: Path, timeout_s: float,
-        rate: float | None = None) -> int:
+        rate: float = 1.0, loop: bool = False) -> int:
     """The demo; 0 when the calibration succeeded.
 
     Args:
@@ -151,7 +151,8 @@ def run(bag: Path, params_file: Path, out: Path, timeout_s: float,
         params_file: the calibrator's ROS 2 parameters file (absolute).
         out: directory for camera.yaml and the node logs; the nodes' working directory.
         timeout_s: seconds to wait for enough views.
-        rate: replay speed (None: slow enough for detection to see most frames).
+        rate: replay speed (1.0: as recorded).
+        loop: replay again and again until enough views are collected.
     """
     # Our own DDS domain on this machine only, before any rclpy context exists; the node
     # processes inherit it.
@@ -163,12 +164,10 @@ def run(bag: Path, params_file: Path, out: Path, timeout_s: float,
     from std_srvs.srv import Trigger
 
     topic, frames, span = _bag_timing(bag)
-    period = span / max(1, frames - 1)
-    if rate is None:
-        rate = min(1.0, period / DETECT_S) if period > 0 else 1.0
     yaml_path = out / "camera.yaml"
     print(f"demo: {bag} has {frames} images on {topic} over {span:.1f} s; "
-          f"replaying at rate {rate:.2f} into the calibrator "
+          f"replaying {'in a loop ' if loop else 'once '}at rate {rate:.2f} into the "
+          "calibrator "
           f"(ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}, parameters {params_file}, "
           f"logs in {out})", flush=True)
     # Run in ``out`` with absolute paths: nothing depends on where the demo was started.
@@ -176,7 +175,8 @@ def run(bag: Path, params_file: Path, out: Path, timeout_s: float,
         "--ros-args", "--params-file", str(params_file), "-r", f"image:={topic}",
         "-p", f"output_file:={yaml_path}"], out / "calibrator.log", cwd=out)
     replay = NodeProcess.python_module("artcal_ros.ros.replay", [
-        "--ros-args", "-p", f"bag:={bag}", "-p", f"rate:={rate:.3f}", "-p", "loop:=true"],
+        "--ros-args", "-p", f"bag:={bag}", "-p", f"rate:={rate:.3f}",
+        "-p", f"loop:={str(loop).lower()}"],
         out / "replay.log", cwd=out)
     rclpy.init()
     node = rclpy.create_node("artcal_demo")
@@ -190,21 +190,37 @@ def run(bag: Path, params_file: Path, out: Path, timeout_s: float,
     try:
         deadline = time.monotonic() + timeout_s
         last = ""
+        played_at: float | None = None
         while True:
             rclpy.spin_once(node, timeout_sec=0.2)
             values = _diagnostics(diagnostics)
-            line = (f"  frames seen {values.get('frames seen')}, used {values.get('frames used')}"
-                    f", views {values.get('views')}/{values.get('views needed')}, coverage "
+            line = (f"  frames seen {values.get('frames seen')}, processed "
+                    f"{values.get('frames processed')}, measured "
+                    f"{values.get('frames measured')}, views {values.get('views')}/"
+                    f"{values.get('views needed')}, coverage "
                     f"{float(values.get('coverage', 0)):.0%}") if values else ""
             if line and line != last:
                 print(line, flush=True)
                 last = line
-            if values and int(values["views"]) >= int(values["views needed"]):
-                break
-            for child in (calibrator, replay):
-                if not child.running():
-                    print(f"demo: the {child.name} node stopped:\n{child.tail()}")
+            if played_at is None and not replay.running():
+                if replay.proc.returncode != 0:
+                    print(f"demo: the replay node failed:\n{replay.tail()}")
                     return 1
+                played_at = time.monotonic()
+            queued = values.get("frames queued") if values else None
+            enough = bool(values) and int(values["views"]) >= int(values["views needed"])
+            if enough and queued == "0" and (loop or played_at is not None):
+                break
+            # Diagnostics come once a second: two after the end of the recording with
+            # nothing queued are its final count.
+            if played_at is not None and not loop and queued == "0" \
+                    and time.monotonic() - played_at > 2.5:
+                print(f"demo: the recording gave {values['views']} views; "
+                      f"{values['views needed']} are needed (try --loop)")
+                return 1
+            if not calibrator.running():
+                print(f"demo: the calibrator node stopped:\n{calibrator.tail()}")
+                return 1
             if time.monotonic() > deadline:
                 print(f"demo: not enough views after {timeout_s:g} s:\n{calibrator.tail()}")
                 return 1
@@ -253,9 +269,10 @@ def main(argv: list[str] | None = None) -> int:
                          "here, else the installed one)")
     ap.add_argument("--out", type=Path, default=None,
                     help="directory for camera.yaml and the node logs (default: a new temp dir)")
-    ap.add_argument("--rate", type=float, default=None,
-                    help="replay speed (default: slow enough for detection to see most "
-                         "frames); at 1.0 the node keeps the newest frame and drops the rest")
+    ap.add_argument("--rate", type=float, default=1.0,
+                    help="replay speed (default 1.0: as recorded)")
+    ap.add_argument("--loop", action="store_true",
+                    help="replay again and again until enough views are collected")
     ap.add_argument("--timeout", type=float, default=120.0,
                     help="seconds to wait for enough views")
     args = ap.parse_args(argv)
@@ -276,7 +293,8 @@ def main(argv: list[str] | None = None) -> int:
         return 2
     t0 = time.monotonic()
     try:
-        status = run(bag.resolve(), params.resolve(), out.resolve(), args.timeout, args.rate)
+        status = run(bag.resolve(), params.resolve(), out.resolve(), args.timeout,
+                     args.rate, args.loop)
     except (DemoError, ArtcalError) as e:  # e.g. an unreadable bag: its one-line reason
         print(f"demo: {e}", file=sys.stderr)
         return 2

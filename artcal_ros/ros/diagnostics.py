@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import threading
+from collections.abc import Mapping
 from dataclasses import dataclass
 
 from builtin_interfaces.msg import Time
@@ -92,7 +93,8 @@ class Counters:
 
 
 def diagnostic_array(node_name: str, camera_name: str, counts: CountsReport, dropped: int,
-                     readiness: Readiness, last_solve: str, stamp: Time) -> DiagnosticArray:
+                     readiness: Readiness, last_solve: str, stamp: Time, *,
+                     extra: Mapping[str, object] | None = None) -> DiagnosticArray:
     """One DiagnosticStatus named after the node: counts, coverage and readiness.
 
     Level WARN while broken frames or detection failures keep coming (since the previous
@@ -103,6 +105,7 @@ def diagnostic_array(node_name: str, camera_name: str, counts: CountsReport, dro
         counts: from :meth:`Counters.report`.
         dropped: frames replaced while detection was busy.
         readiness: the collection's state (views, coverage, what is missing).
+        extra: more key/values, after the standard ones.
     """
     problems = []
     if counts.new_broken:
@@ -126,6 +129,7 @@ def diagnostic_array(node_name: str, camera_name: str, counts: CountsReport, dro
         "ready": str(readiness.ready).lower(),
         "missing": "; ".join(readiness.missing),
         "last calibration": last_solve,
+        **(extra or {}),
     }
     status = DiagnosticStatus(
         level=level, name=f"{node_name}: camera calibration", message=message,

@@ -1,0 +1,245 @@
+"""Two tiers for a live camera stream: every frame tracked, the useful ones measured.
+
+Precise detection (:class:`~artcal_ros.core.detect.Detector`) takes a few hundred
+milliseconds a 1080p frame on a small machine; a camera sends a frame every 33 ms. So a
+live stream is handled in two tiers:
+
+1. **Every frame, at once** (:meth:`LiveDetection.offer`, the caller's thread): the
+   markers are followed from the previous frames with :class:`MarkerTracker` (a few
+   milliseconds), for the overlay and for deciding whether the frame shows a view the
+   collection lacks. If it does, the view is held in the collection
+   (:meth:`ViewCollector.reserve`) and the frame queued for precise detection.
+2. **In the background** (one thread): precise detection of the queued frames, oldest
+   first; their detections settle the held views (:meth:`ViewCollector.settle`: only
+   precisely detected markers ever reach a solve) and re-seed the tracker. When nothing
+   is queued, the newest frame is detected now and then as well (at most every
+   ``refresh_s``): that finds markers the tracker has lost or never had, and its
+   detections are offered to the collection too.
+
+The queue is bounded (frames and bytes); a view that finds it full is not held, and a
+later frame of the same view gets another chance.
+"""
+
+from __future__ import annotations
+
+import contextlib
+import threading
+import time
+from collections import deque
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import numpy as np
+
+from artcal_ros.core.board import Board
+from artcal_ros.core.coverage import ViewCollector
+from artcal_ros.core.detect.tracking import MarkerTracker
+from artcal_ros.core.detections import Detections
+
+__all__ = ["LiveConfig", "LiveCounts", "LiveDetection", "LiveFrame"]
+
+
+@dataclass(frozen=True)
+class LiveConfig:
+    """Bounds of the background tier.
+
+    Attributes:
+        max_queued: frames waiting for precise detection at most.
+        max_queued_bytes: their total size at most, bytes.
+        refresh_s: with nothing queued, the newest frame is detected precisely at most
+            this often, seconds (0: whenever the background tier is idle).
+    """
+
+    max_queued: int = 16
+    max_queued_bytes: int = 256 * 2**20
+    refresh_s: float = 0.2
+
+
+@dataclass(frozen=True)
+class LiveFrame:
+    """What the fast tier made of one frame.
+
+    Attributes:
+        index: the frame's number in the stream.
+        markers: tracked markers (approximate, NaN sigmas), full-resolution pixels.
+        queued: the frame shows a new view and waits for precise detection.
+    """
+
+    index: int
+    markers: Detections
+    queued: bool
+
+
+@dataclass(frozen=True)
+class LiveCounts:
+    """Background-tier counts since start.
+
+    Attributes:
+        measured: frames detected precisely.
+        queued: frames waiting now.
+        refused: new views not held because the queue was full.
+    """
+
+    measured: int
+    queued: int
+    refused: int
+
+
+@dataclass(frozen=True)
+class _Job:
+    index: int
+    image: np.ndarray
+    ticket: int | None      # a held view, or None for a refresh
+
+
+class LiveDetection:
+    """Tracked markers for every frame and precise detections in the background.
+
+    Args:
+        board: the calibration board.
+        detect: precise detection of one image (a :class:`Detector`'s ``detect``).
+        collector: where views go.
+        config: bounds, see :class:`LiveConfig`.
+        on_measured: called on the background thread after each precise detection with
+            the detections and whether they added a view.
+        on_error: called on the background thread with an exception detection raised (the
+            frame is skipped, its held view released).
+    """
+
+    def __init__(self, board: Board, detect: Callable[[np.ndarray], Detections],
+                 collector: ViewCollector, config: LiveConfig | None = None, *,
+                 on_measured: Callable[[Detections, bool], None] | None = None,
+                 on_error: Callable[[BaseException], None] | None = None) -> None:
+        self.config = config or LiveConfig()
+        self.tracker = MarkerTracker(board)
+        self.collector = collector
+        self._detect = detect
+        self._on_measured = on_measured
+        self._on_error = on_error
+        self._cond = threading.Condition()
+        self._queue: deque[_Job] = deque()
+        self._queued_bytes = 0
+        self._latest: _Job | None = None
+        self._last_refresh = -np.inf
+        self._busy = False
+        self._stopping = False
+        self._measured = 0
+        self._refused = 0
+        self._thread = threading.Thread(target=self._run, name="detect-precise", daemon=True)
+        self._thread.start()
+
+    # --- fast tier -----------------------------------------------------------------
+    def offer(self, image: np.ndarray) -> LiveFrame:
+        """Track the markers into a new frame; queue it if it shows a new view.
+
+        Args:
+            image: (H, W) uint8/uint16 grey or (H, W, 3) uint8 BGR. It is kept (not
+                copied) until the background tier is done with it: do not write to it.
+        """
+        index, markers = self.tracker.track(image)
+        ticket = self.collector.reserve(markers) if len(markers) else None
+        queued = False
+        with self._cond:
+            if ticket is not None:
+                cfg = self.config
+                if (len(self._queue) < cfg.max_queued
+                        and self._queued_bytes + image.nbytes <= cfg.max_queued_bytes):
+                    self._queue.append(_Job(index, image, ticket))
+                    self._queued_bytes += image.nbytes
+                    queued = True
+                else:
+                    self._refused += 1
+            self._latest = _Job(index, image, None)
+            self._cond.notify()
+        if ticket is not None and not queued:
+            self.collector.release(ticket)
+        return LiveFrame(index, markers, queued)
+
+    # --- background tier -----------------------------------------------------------
+    def _next_job(self) -> _Job | None:
+        # Caller holds the condition. Held views first; else the newest frame, rate-limited.
+        if self._queue:
+            job = self._queue.popleft()
+            self._queued_bytes -= job.image.nbytes
+            return job
+        wait = self._last_refresh + self.config.refresh_s - time.monotonic()
+        if self._latest is not None and wait <= 0:
+            job, self._latest = self._latest, None
+            self._last_refresh = time.monotonic()
+            return job
+        return None
+
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                job = self._next_job()
+                while job is None and not self._stopping:
+                    self._cond.wait(timeout=0.05)
+                    job = self._next_job()
+                if self._stopping or job is None:
+                    return
+                self._busy = True
+            try:
+                self._measure(job)
+            finally:
+                with self._cond:
+                    self._busy = False
+                    self._measured += 1
+                    self._cond.notify_all()
+
+    def _measure(self, job: _Job) -> None:
+        try:
+            dets = self._detect(job.image)
+        except Exception as e:
+            if job.ticket is not None:
+                self.collector.release(job.ticket)
+            if self._on_error is not None:
+                with contextlib.suppress(Exception):
+                    self._on_error(e)
+            return
+        self.tracker.seed(job.index, dets)
+        if job.ticket is not None:
+            kept = self.collector.settle(job.ticket, dets)
+        else:
+            kept = self.collector.add(dets)
+        if self._on_measured is not None:
+            self._on_measured(dets, kept)
+
+    # --- state ---------------------------------------------------------------------
+    def counts(self) -> LiveCounts:
+        """Frames measured, waiting and refused so far."""
+        with self._cond:
+            return LiveCounts(self._measured, len(self._queue) + (1 if self._busy else 0),
+                              self._refused)
+
+    def wait_idle(self, timeout: float, stopping: threading.Event | None = None) -> bool:
+        """Wait until no held view waits for its precise detection; whether that came."""
+        deadline = time.monotonic() + timeout
+        with self._cond:
+            while self.collector.pending:
+                left = deadline - time.monotonic()
+                if left <= 0 or self._stopping or (stopping is not None and stopping.is_set()):
+                    return False
+                self._cond.wait(timeout=min(left, 0.1))
+            return True
+
+    def reset(self) -> None:
+        """Drop the queued frames and the tracked markers (the collection is reset apart)."""
+        with self._cond:
+            jobs = list(self._queue)
+            self._queue.clear()
+            self._queued_bytes = 0
+            self._latest = None
+        for job in jobs:
+            if job.ticket is not None:
+                self.collector.release(job.ticket)
+        self.tracker.reset()
+
+    def stop(self, timeout: float = 1.0) -> None:
+        """End the background thread (a detection in progress finishes; it is a daemon)."""
+        with self._cond:
+            self._stopping = True
+            self._queue.clear()
+            self._queued_bytes = 0
+            self._cond.notify_all()
+        self._thread.join(timeout)
