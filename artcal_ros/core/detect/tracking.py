@@ -217,9 +217,11 @@ class MarkerTracker:
                                - self._object_centers[ids][:, None], axis=2)
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(have & (d_obj > 0), d_img / d_obj, np.nan)
-        with np.errstate(all="ignore"):
-            out = np.nanmedian(ratio, axis=1) if len(ids) else np.zeros(0)
-        return np.where(np.isfinite(out), out, 0.0)
+        out = np.zeros(len(ids))
+        rows = np.isfinite(ratio).any(axis=1)
+        if rows.any():
+            out[rows] = np.nanmedian(ratio[rows], axis=1)
+        return out
 
     def _quads(self, ids: np.ndarray, centers: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray]:
