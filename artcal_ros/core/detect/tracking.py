@@ -71,6 +71,7 @@ class TrackerConfig:
 class _Frame:
     index: int
     gray: np.ndarray      # (h, w) uint8 at the tracking scale
+    shift: np.ndarray     # (2,) median motion of the tracked centres into this frame
 
 
 @dataclass(frozen=True)
@@ -163,14 +164,20 @@ class MarkerTracker:
         self._size = None
         self._tracks = None
 
-    def _step(self, tracks: _Tracks, frame: np.ndarray) -> _Tracks:
-        """The markers carried into ``frame`` (those that survive every check)."""
+    def _step(self, tracks: _Tracks, frame: np.ndarray, shift: np.ndarray) -> _Tracks:
+        """The markers carried into ``frame`` (those that survive every check).
+
+        ``shift`` is the frame's median motion since the previous one, where known (else 0).
+        """
         if len(tracks.ids) == 0:
             return replace(tracks, frame=frame)
         cfg = self.config
-        # The search starts where constant motion puts each centre, so a fast sweep does
-        # not alias onto the next marker of the repeating board.
-        guess = (tracks.centers + tracks.velocity).reshape(-1, 1, 2).astype(np.float32)
+        # The search starts where constant motion puts each centre (or, for a fresh seed,
+        # the motion the frame is known to have had), so a fast sweep does not alias onto
+        # the next marker of the repeating board.
+        fresh = not np.any(tracks.velocity)
+        guess = tracks.centers + (shift if fresh else tracks.velocity)
+        guess = guess.reshape(-1, 1, 2).astype(np.float32)
         moved, status, _ = cv2.calcOpticalFlowPyrLK(
             tracks.frame, frame, tracks.centers.reshape(-1, 1, 2), guess,
             winSize=(cfg.window_px, cfg.window_px), maxLevel=cfg.levels,
@@ -261,9 +268,12 @@ class MarkerTracker:
                 self._size, self._scale = (w, h), scale
             index = self._next_index
             self._next_index += 1
+            shift = np.zeros(2, np.float32)
             if self._tracks is not None:
-                self._tracks = self._step(self._tracks, gray)
-            self._frames.append(_Frame(index, gray))
+                self._tracks = self._step(self._tracks, gray, shift)
+                if len(self._tracks.ids):
+                    shift = np.median(self._tracks.velocity, axis=0).astype(np.float32)
+            self._frames.append(_Frame(index, gray, shift))
             tracks = self._tracks
         if tracks is None:
             return index, Detections.empty((w, h), "tracked")
@@ -290,13 +300,13 @@ class MarkerTracker:
         # Carry forward outside the lock (the stream goes on meanwhile), then catch up on
         # the frames that came in since, under it.
         for frame in frames[1:]:
-            tracks = self._step(tracks, frame.gray)
+            tracks = self._step(tracks, frame.gray, frame.shift)
         last = frames[-1].index
         with self._lock:
             if self._size != dets.image_size or not self._frames \
                     or self._frames[-1].index < last:
                 return 0
             for frame in [f for f in self._frames if f.index > last]:
-                tracks = self._step(tracks, frame.gray)
+                tracks = self._step(tracks, frame.gray, frame.shift)
             self._tracks = tracks
             return len(tracks.ids)
