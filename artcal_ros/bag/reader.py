@@ -16,17 +16,33 @@ as ``ros2 bag record -s mcap`` writes it) or a bare ``.mcap`` file::
 
 Every problem (a missing path, a directory that is not a bag, a bag in sqlite3 storage,
 a truncated or corrupt file) raises BagError naming the file and, for damaged files, the
-byte offset where reading broke. Messages before a break are yielded first.
+byte offset where reading broke. Messages before a break are yielded first; with
+``messages(on_damage="stop")`` the iteration ends there instead and the break is added to
+``reader.warnings``.
+
+Order: an indexed file (one with a summary, as every finished recording has) is read in
+log-time order, whatever order the messages were written in. A file without an index (a
+recording cut short, or written unchunked without a summary) is read in file order, the
+order the recorder wrote; a message earlier than the one before it is yielded where it is
+and noted once in ``reader.warnings``.
+
+A metadata.yaml that cannot be used (not YAML, not a rosbag2 mapping, listing files that
+are not there) is set aside when the directory holds .mcap files: they are read alone and
+the problem is in ``reader.warnings``. A channel without a decodable message definition
+(another encoding, a missing or broken schema) is listed and its messages are yielded;
+only ``decode()`` raises BagError, saying why.
 """
 
 from __future__ import annotations
 
+import contextlib
+import io
 import os
 from collections.abc import Callable, Collection, Iterator
 from dataclasses import dataclass, field
 from pathlib import Path
 from types import TracebackType
-from typing import Any
+from typing import Any, Literal
 
 import yaml
 from mcap.records import Schema
@@ -105,7 +121,9 @@ class _Decoders:
         # Each file gets its own factory: schema ids are only unique within one file.
         factory = DecoderFactory()
         try:
-            decoder = factory.decoder_for(encoding, schema)
+            # the definition parser prints its complaints; they are in the error already
+            with contextlib.redirect_stderr(io.StringIO()):
+                decoder = factory.decoder_for(encoding, schema)
         except Exception as err:
             return failing(f"the message definition of {schema.name} does not parse ({err})")
         if decoder is None:
@@ -126,6 +144,7 @@ class BagReader:
     def __init__(self, path: str | os.PathLike[str]) -> None:
         self.path = Path(path).expanduser()
         self.metadata: dict[str, Any] | None = None
+        self.warnings: list[str] = []  # problems read past: unusable metadata, damage, order
         self._files: list[McapFile] = []
         self._decoders = _Decoders()
         try:
@@ -149,22 +168,23 @@ class BagReader:
                 raise _sqlite_error(p)
             return [p]
         meta_path = p / "metadata.yaml"
+        found = sorted(p.glob("*.mcap"))
         if meta_path.is_file():
-            self.metadata = _read_metadata(meta_path)
-            names = self.metadata.get("relative_file_paths") or []
-            paths = [p / str(name) for name in names]
-            missing = [str(q) for q in paths if not q.is_file()]
-            if missing:
-                raise BagError(
-                    f"{meta_path} lists files that do not exist: {', '.join(missing)}"
+            try:
+                self.metadata = _read_metadata(meta_path)
+                return _listed_files(meta_path, self.metadata)
+            except _UnusableMetadataError as err:
+                if not found:
+                    raise BagError(str(err)) from None
+                self.metadata = None
+                self.warnings.append(
+                    f"{err}; reading the .mcap files in {p} without it: "
+                    f"{', '.join(q.name for q in found)}"
                 )
-            if not paths:
-                raise BagError(f"{meta_path} lists no storage files (relative_file_paths)")
-            return paths
+                return found
         # No metadata.yaml (e.g. a recording that was killed): read the MCAP files alone.
-        paths = sorted(p.glob("*.mcap"))
-        if paths:
-            return paths
+        if found:
+            return found
         if list(p.glob("*.db3")):
             raise _sqlite_error(p)
         raise BagError(
@@ -195,11 +215,16 @@ class BagReader:
                 out[channel.topic] = schema.name if schema is not None else ""
         return out
 
+    def topics_text(self) -> str:
+        """The recorded topics with their types, for messages: ``/a (sensor_msgs/msg/Image)``."""
+        listed = [f"{t} ({kind or 'no type'})" for t, kind in sorted(self.topics.items())]
+        return ", ".join(listed) or "no topics"
+
     @property
     def message_count(self) -> int | None:
         """Number of messages, from metadata.yaml or the MCAP statistics; None if unknown."""
         if self.metadata is not None and "message_count" in self.metadata:
-            return int(self.metadata["message_count"])
+            return int(self.metadata["message_count"])  # checked by _read_metadata
         counts = [f.message_count() for f in self._files]
         if any(c is None for c in counts):
             return None
@@ -207,15 +232,47 @@ class BagReader:
 
     # -- messages --------------------------------------------------------------------------
 
-    def messages(self, topics: Collection[str] | str | None = None) -> Iterator[BagMessage]:
-        """Every message (of ``topics``, if given), lazily, file by file in log-time order.
+    def messages(self, topics: Collection[str] | str | None = None, *,
+                 on_damage: Literal["raise", "stop"] = "raise") -> Iterator[BagMessage]:
+        """Every message (of ``topics``, if given), lazily, file by file (order: see above).
+
+        Args:
+            topics: a topic or topics to read; each must be in the bag.
+            on_damage: at a truncated or corrupt record, "raise" BagError; "stop" ends the
+                iteration there and appends the BagError's text to ``warnings``.
 
         Raises:
-            BagError: where a file is truncated or corrupt, after the messages before it.
+            BagError: a topic that is not in the bag (the message lists those that are,
+                with their types); where a file is truncated or corrupt (after the
+                messages before it), unless ``on_damage`` is "stop".
         """
         wanted = [topics] if isinstance(topics, str) else topics
+        if wanted is not None:
+            recorded = self.topics
+            missing = [t for t in wanted if t not in recorded]
+            if missing:
+                raise BagError(
+                    f"{self.path}: no topic {', '.join(missing)} in this bag; it has "
+                    f"{self.topics_text()}"
+                )
+        try:
+            yield from self._messages(wanted)
+        except BagError as err:
+            if on_damage != "stop":
+                raise
+            self.warnings.append(str(err))
+
+    def _messages(self, wanted: Collection[str] | None) -> Iterator[BagMessage]:
         for index, f in enumerate(self._files):
+            last_ns = -1
             for schema, channel, message in f.messages(wanted):
+                if message.log_time < last_ns and f.summary is None:
+                    self.warnings.append(
+                        f"{f.path}: messages are not in log-time order (the file has no "
+                        "index to sort them by); they are read in the order they were written"
+                    )
+                    last_ns = 2**64  # said once per file
+                last_ns = max(last_ns, message.log_time)
                 yield BagMessage(
                     topic=channel.topic,
                     msgtype=schema.name if schema is not None else "",
@@ -262,15 +319,37 @@ def _sqlite_error(path: Path) -> BagError:
     )
 
 
+class _UnusableMetadataError(BagError):
+    """metadata.yaml cannot be used; the .mcap files may still be read without it."""
+
+
+def _listed_files(meta_path: Path, info: dict[str, Any]) -> list[Path]:
+    """The storage files metadata.yaml lists, each checked to exist."""
+    names = info.get("relative_file_paths") or []
+    if not isinstance(names, list):
+        raise _UnusableMetadataError(
+            f"{meta_path}: relative_file_paths is {names!r}, not a list of file names")
+    paths = [meta_path.parent / str(name) for name in names]
+    missing = [str(q) for q in paths if not q.is_file()]
+    if missing:
+        raise _UnusableMetadataError(
+            f"{meta_path} lists files that do not exist: {', '.join(missing)}")
+    if not paths:
+        raise _UnusableMetadataError(f"{meta_path} lists no storage files (relative_file_paths)")
+    return paths
+
+
 def _read_metadata(meta_path: Path) -> dict[str, Any]:
     """The ``rosbag2_bagfile_information`` mapping, checked for MCAP storage."""
     try:
         doc = yaml.safe_load(meta_path.read_text(encoding="utf-8"))
     except (OSError, UnicodeDecodeError, yaml.YAMLError) as err:
-        raise BagError(f"{meta_path}: cannot read: {err}") from err
+        first = str(err).splitlines()[0] if str(err) else type(err).__name__
+        raise _UnusableMetadataError(f"{meta_path}: cannot read it: {first}") from None
     info = doc.get("rosbag2_bagfile_information") if isinstance(doc, dict) else None
     if not isinstance(info, dict):
-        raise BagError(f"{meta_path}: no rosbag2_bagfile_information mapping; not a rosbag2 bag")
+        raise _UnusableMetadataError(
+            f"{meta_path}: no rosbag2_bagfile_information mapping; not a rosbag2 bag")
     storage = str(info.get("storage_identifier", ""))
     if storage == "sqlite3":
         raise _sqlite_error(meta_path.parent)
@@ -283,4 +362,14 @@ def _read_metadata(meta_path: Path) -> dict[str, Any]:
             f"{meta_path}: the bag is compressed per {info['compression_mode']} "
             f"({info.get('compression_format')}); decompress it first with `ros2 bag convert`"
         )
+    count = info.get("message_count")
+    if count is not None and (isinstance(count, bool) or not isinstance(count, int)):
+        raise _UnusableMetadataError(f"{meta_path}: message_count is {count!r}, not a number")
+    topics = info.get("topics_with_message_count")
+    if topics is not None and not (
+        isinstance(topics, list) and all(
+            isinstance(e, dict) and isinstance(e.get("topic_metadata") or {}, dict)
+            for e in topics)):
+        raise _UnusableMetadataError(
+            f"{meta_path}: topics_with_message_count is not a list of topic entries")
     return info

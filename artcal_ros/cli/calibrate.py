@@ -18,9 +18,10 @@ from __future__ import annotations
 
 import argparse
 import json
+import os
 import sys
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from dataclasses import replace
 from pathlib import Path
 from typing import Any
@@ -29,11 +30,12 @@ import numpy as np
 
 from artcal_ros.cli.common import add_params_arguments, params_from_args
 from artcal_ros.cli.progress import Progress
+from artcal_ros.cli.skipped import SkippedFrames, read_image_file
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate import CalibrationResult
 from artcal_ros.core.calibrate.session import detect_views, session_summary, solve_session
 from artcal_ros.core.detections import Detections
-from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
+from artcal_ros.core.errors import ArtcalError, BagError, ImageFormatError, ParameterError
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 DEFAULT_TOPIC = "/camera/image_raw"
@@ -67,22 +69,11 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def _read_image(path: str) -> np.ndarray:
-    import cv2
-
-    image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise ImageFormatError(f"cannot read image {path} (missing, or not an image file)")
-    if image.ndim == 3 and image.shape[2] == 4:
-        image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
-    return np.asarray(image)
-
-
 def _bag_topic(topics: dict[str, str], wanted: str | None, bag: str) -> str:
     if wanted is not None:
         if wanted not in topics:
-            raise ParameterError(f"--topic {wanted}: not in {bag} (topics: "
-                                 f"{', '.join(sorted(topics)) or 'none'})")
+            listed = ", ".join(f"{t} ({kind or 'no type'})" for t, kind in sorted(topics.items()))
+            raise ParameterError(f"--topic {wanted}: not in {bag} (topics: {listed or 'none'})")
         if topics[wanted] not in IMAGE_TYPES:
             raise ParameterError(f"--topic {wanted}: is {topics[wanted]}, not an image topic")
         return wanted
@@ -98,13 +89,16 @@ def _bag_topic(topics: dict[str, str], wanted: str | None, bag: str) -> str:
 
 
 def _bag_frames(bag: str, topic: str | None, max_frames: int, budget_s: float,
-                quiet: bool) -> Iterator[tuple[str, np.ndarray]]:
+                quiet: bool, skipped: SkippedFrames,
+                warn: Callable[[str], None]) -> Iterator[tuple[str, np.ndarray]]:
     """Frames of the bag's image topic, spread evenly over the recording.
 
     At most ``max_frames`` (0: no limit) are decoded; with a time budget the spacing
     adapts as detection goes, so reading and detecting stay within about ``budget_s``
     seconds whatever the detector's speed (consecutive frames at 30 fps are nearly the
-    same view anyway).
+    same view anyway). Messages that do not decode or convert are skipped and counted in
+    ``skipped``; a recording broken part-way gives its frames before the break, and
+    ``warn`` is told where it broke.
     """
     from artcal_ros.bag import BagReader
     from artcal_ros.core.images import compressed_to_numpy, image_to_numpy
@@ -114,17 +108,22 @@ def _bag_frames(bag: str, topic: str | None, max_frames: int, budget_s: float,
         name = _bag_topic(reader.topics, topic, bag)
         total = reader.message_count if len(reader.topics) == 1 else None
         if total is None:  # count this topic's messages (cheap: no decoding)
-            total = sum(1 for _ in reader.messages(name))
+            total = sum(1 for _ in reader.messages(name, on_damage="stop"))
         cap = total if max_frames <= 0 else min(max_frames, total)
         bar: Progress[Any] = Progress(total=cap, label=f"detect {name}", enabled=not quiet)
         taken = 0
         next_index = 0.0
-        for k, m in enumerate(reader.messages(name)):
+        for k, m in enumerate(reader.messages(name, on_damage="stop")):
             if k < next_index:
                 continue
-            msg = m.decode()
-            image = (compressed_to_numpy(msg) if m.msgtype.endswith("CompressedImage")
-                     else image_to_numpy(msg))
+            try:
+                msg = m.decode()
+                image = (compressed_to_numpy(msg) if m.msgtype.endswith("CompressedImage")
+                         else image_to_numpy(msg))
+            except (BagError, ImageFormatError) as e:
+                skipped.add(e)
+                next_index = k + 1  # the next message stands in for this one
+                continue
             yield f"{name}#{k}@{m.log_time_ns}", image
             taken += 1
             bar.update()
@@ -138,11 +137,44 @@ def _bag_frames(bag: str, topic: str | None, max_frames: int, budget_s: float,
                 break
             next_index = k + max(1.0, (total - k - 1) / left)
         bar.close()
+        for text in dict.fromkeys(reader.warnings):  # each once, in order
+            warn(text)
 
 
-def _file_frames(paths: list[str], quiet: bool) -> Iterator[tuple[str, np.ndarray]]:
+def _file_frames(paths: list[str], quiet: bool,
+                 skipped: SkippedFrames) -> Iterator[tuple[str, np.ndarray]]:
     for path in Progress(paths, label="detect", enabled=not quiet):
-        yield path, _read_image(path)
+        try:
+            image = read_image_file(path)
+        except ImageFormatError as e:
+            skipped.add(e)
+            continue
+        yield path, image
+
+
+def _one_size(frames: Iterator[tuple[str, np.ndarray]],
+              skipped: SkippedFrames) -> Iterator[tuple[str, np.ndarray]]:
+    """The frames of the first frame's size; the others skipped (one camera at a time)."""
+    size: tuple[int, ...] | None = None
+    for source, image in frames:
+        if size is None:
+            size = image.shape[:2]
+        if image.shape[:2] != size:
+            skipped.add(f"{image.shape[1]}x{image.shape[0]} image, not the first frame's "
+                        f"{size[1]}x{size[0]}")
+            continue
+        yield source, image
+
+
+def _check_writable(flag: str, path: str) -> None:
+    """Refuse, before any work, an output path whose nearest existing folder is no folder."""
+    parent = Path(path).expanduser().absolute().parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ParameterError(f"{flag} {path}: cannot write it: {parent} is not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ParameterError(f"{flag} {path}: cannot write it: {parent}: permission denied")
 
 
 def _k3_alias(args: argparse.Namespace, params: dict[str, Any]) -> dict[str, Any]:
@@ -170,15 +202,31 @@ def run(args: argparse.Namespace) -> int:
         raise ParameterError("--topic needs --bag")
     if args.max_views is not None and args.max_views < 3:
         raise ParameterError(f"--max-views {args.max_views}: must be at least 3")
-    frames = (_bag_frames(args.bag, args.topic, args.max_frames, args.time_budget, args.quiet)
-              if args.bag
-              else _file_frames(list(args.images), args.quiet))
-    start = time.monotonic()
-    dets, size = detect_views(frames, board)
+    for flag, path in (("--output", args.output), ("--report", args.report)):
+        if path:
+            _check_writable(flag, path)
 
     def say(msg: str) -> None:
         if not args.quiet:
             print(f"calibrate: {msg}", file=sys.stderr)
+
+    def warn(msg: str) -> None:
+        print(f"artcal calibrate: warning: {msg}", file=sys.stderr)
+
+    skipped = SkippedFrames()
+    frames = (_bag_frames(args.bag, args.topic, args.max_frames, args.time_budget, args.quiet,
+                          skipped, warn)
+              if args.bag
+              else _file_frames(list(args.images), args.quiet, skipped))
+    start = time.monotonic()
+    try:
+        dets, size = detect_views(_one_size(frames, skipped), board)
+    except ParameterError:
+        if not skipped.count:
+            raise
+        raise ImageFormatError(f"no usable frame: {skipped.summary()}") from None
+    if skipped.count:
+        warn(skipped.summary())
 
     session = solve_session(dets, board, size, params, output=args.output,
                             max_views=args.max_views, progress=say)
@@ -186,6 +234,8 @@ def run(args: argparse.Namespace) -> int:
         write_report(Path(args.report), session.result, dets)
     # The session's time is the solve's; the user waited for the detection too.
     print(session_summary(replace(session, seconds=time.monotonic() - start), long=True))
+    if skipped.count:
+        print(skipped.summary())
     return 0
 
 

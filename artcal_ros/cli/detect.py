@@ -23,6 +23,7 @@ import numpy as np
 
 from artcal_ros.cli.common import add_params_arguments, params_from_args
 from artcal_ros.cli.progress import Progress
+from artcal_ros.cli.skipped import SkippedFrames, read_image_file
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector
 from artcal_ros.core.detections import Detections
@@ -41,23 +42,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
 
 
-def read_image(path: str) -> np.ndarray:
-    """An image file as (H, W) uint8/uint16 or (H, W, 3) BGR uint8.
-
-    Raises:
-        ImageFormatError: naming the file when it is missing or cannot be decoded.
-    """
-    if not os.path.isfile(path):
-        raise ImageFormatError(f"cannot read image {path}: no such file")
-    image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
-    if image is None:
-        raise ImageFormatError(f"cannot read image {path}: not an image OpenCV can decode")
-    if image.ndim == 3 and image.shape[2] == 4:
-        image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
-    if image.dtype not in (np.uint8, np.uint16):
-        raise ImageFormatError(f"cannot use image {path}: pixel type {image.dtype}; "
-                               "save it as 8- or 16-bit")
-    return np.asarray(image)
+# the image reader of every verb (an image per file, errors naming the file)
+read_image = read_image_file
 
 
 def draw_detections(image: np.ndarray, dets: Detections) -> np.ndarray:
@@ -87,31 +73,48 @@ def draw_detections(image: np.ndarray, dets: Detections) -> np.ndarray:
 
 
 def run(args: argparse.Namespace) -> int:
-    """Detect in every image, write the JSON (and overlays); print a one-line summary."""
+    """Detect in every image, write the JSON (and overlays); print a one-line summary.
+
+    Images that cannot be read are skipped, counted and named in the summary; only when
+    none can be read is it an error (exit 2).
+    """
     board = Board.from_params(params_from_args(args))
     detector = Detector(board)
     out_json = Path(args.json)
-    if out_json.parent and not out_json.parent.exists():
+    if out_json.parent and not out_json.parent.is_dir():
         raise ParameterError(f"--json {args.json}: directory {out_json.parent} does not exist")
     overlay_dir = Path(args.overlay) if args.overlay else None
     if overlay_dir is not None:
-        overlay_dir.mkdir(parents=True, exist_ok=True)
-    for path in args.images:  # fail before any work on a missing file
-        if not os.path.isfile(path):
-            raise ImageFormatError(f"cannot read image {path}: no such file")
+        try:
+            overlay_dir.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise ParameterError(f"--overlay {args.overlay}: cannot create it: "
+                                 f"{e.strerror or e}") from None
     records: list[dict[str, Any]] = []
+    skipped = SkippedFrames()
     total = 0
     for path in Progress(args.images, label="detect",
                          enabled=not args.quiet and len(args.images) > 1):
-        image = read_image(path)
+        try:
+            image = read_image_file(path)
+        except ImageFormatError as e:
+            skipped.add(e)
+            continue
         dets = detector.detect(image, source=path)
         records.append(dets.to_json(file=path))
         total += len(dets)
         if overlay_dir is not None:
             name = overlay_dir / (Path(path).stem + ".png")
-            cv2.imwrite(str(name), draw_detections(image, dets))
+            if not cv2.imwrite(str(name), draw_detections(image, dets)):
+                raise ParameterError(f"--overlay {args.overlay}: cannot write {name}")
+    if not records:
+        raise ImageFormatError(f"no usable image: {skipped.summary()}")
     tmp = out_json.with_name(out_json.name + ".tmp")
-    tmp.write_text(json.dumps({"images": records}, indent=1) + "\n")
-    os.replace(tmp, out_json)
-    print(f"wrote {args.json}: {total} markers in {len(records)} image(s)")
+    try:
+        tmp.write_text(json.dumps({"images": records}, indent=1) + "\n")
+        os.replace(tmp, out_json)
+    except OSError as e:
+        raise ParameterError(f"--json {args.json}: cannot write it: {e.strerror or e}") from None
+    line = f"wrote {args.json}: {total} markers in {len(records)} image(s)"
+    print(line + (f"; {skipped.summary()}" if skipped.count else ""))
     return 0

@@ -17,17 +17,20 @@ read-only and share memory with the message; copy before modifying them. Convers
 
 from __future__ import annotations
 
+import operator
 from dataclasses import dataclass
 from typing import Any
 
 import cv2
 import numpy as np
 
+from artcal_ros.core.compressed_header import check_compressed_header, compressed_size
 from artcal_ros.core.errors import ImageFormatError
 
 __all__ = [
     "ENCODINGS",
     "ImageFormatError",
+    "compressed_size",
     "compressed_to_numpy",
     "image_to_numpy",
     "numpy_to_image",
@@ -96,13 +99,40 @@ def _field(msg: Any, name: str) -> Any:
 
 def _int_field(msg: Any, name: str) -> int:
     value = _field(msg, name)
-    try:
-        number = int(value)
-    except (TypeError, ValueError):
-        raise ImageFormatError(f"{name} must be an integer, not {value!r}") from None
+    number: int | None = None
+    if not isinstance(value, bool | str | bytes):
+        try:
+            number = operator.index(value)  # int and numpy integers
+        except TypeError:
+            if isinstance(value, float | np.floating) and np.isfinite(value) and value == int(
+                value
+            ):
+                number = int(value)
+    if number is None:
+        raise ImageFormatError(
+            f"{name} must be an integer, not {value!r}; the message header is corrupt"
+        )
     if number < 0:
-        raise ImageFormatError(f"{name} must be >= 0, got {number}")
+        raise ImageFormatError(f"{name} must be >= 0, got {number}; the message header is corrupt")
     return number
+
+
+def _big_endian(msg: Any) -> bool:
+    value = _int_field(msg, "is_bigendian")
+    if value > 1:
+        raise ImageFormatError(
+            f"is_bigendian must be 0 or 1, got {value}; the message header is corrupt"
+        )
+    return bool(value)
+
+
+def _encoding_name(msg: Any) -> str:
+    value = _field(msg, "encoding")
+    if isinstance(value, bytes):
+        value = value.decode("ascii", "replace")
+    if not isinstance(value, str):
+        raise ImageFormatError(f"encoding must be a string, not {value!r}")
+    return value
 
 
 def lookup_encoding(encoding: Any) -> _Encoding:
@@ -125,24 +155,32 @@ def lookup_encoding(encoding: Any) -> _Encoding:
 
 def _as_bytes(data: Any) -> np.ndarray:
     """``data`` as a flat uint8 array, without a copy when the buffer allows it."""
-    if isinstance(data, np.ndarray):
-        if data.dtype == np.uint8 or data.dtype == np.int8:
-            return data.reshape(-1).view(np.uint8)
-        if data.dtype.kind in "iu" and data.size and (data.min() < 0 or data.max() > 255):
-            raise ImageFormatError("data holds values outside 0..255; expected bytes")
-        return data.astype(np.uint8).reshape(-1)
     if isinstance(data, bytes | bytearray | memoryview):
-        return np.frombuffer(data, np.uint8)
-    try:
-        return np.frombuffer(memoryview(data).cast("B"), np.uint8)  # array.array and friends
-    except TypeError:
-        pass
+        try:
+            return np.frombuffer(data, np.uint8)
+        except (TypeError, ValueError):  # a memoryview of a non-contiguous buffer
+            pass
+    elif not isinstance(data, np.ndarray | str):
+        try:
+            return np.frombuffer(memoryview(data).cast("B"), np.uint8)  # array.array and friends
+        except (TypeError, ValueError):
+            pass
     try:
         arr = np.asarray(data)
-    except (TypeError, ValueError) as err:
+    except Exception as err:  # any object may come in; none may escape
         raise ImageFormatError(f"data is not a byte buffer ({type(data).__name__})") from err
-    if arr.dtype.kind not in "iu" or (arr.size and (arr.min() < 0 or arr.max() > 255)):
-        raise ImageFormatError(f"data is not a sequence of bytes ({type(data).__name__})")
+    if arr.dtype == np.uint8 or arr.dtype == np.int8:
+        if arr.ndim == 0:
+            raise ImageFormatError(f"data is a single number, not a byte buffer ({data!r})")
+        return arr.reshape(-1).view(np.uint8)
+    if arr.ndim == 0 or arr.dtype.kind not in "iu" or (
+        arr.size and (arr.min() < 0 or arr.max() > 255)
+    ):
+        kind = f"an array of {arr.dtype.name}" if isinstance(data, np.ndarray) else (
+            type(data).__name__)
+        raise ImageFormatError(
+            f"data is not a sequence of bytes ({kind}); expected bytes or uint8 values 0..255"
+        )
     return arr.astype(np.uint8).reshape(-1)
 
 
@@ -161,17 +199,21 @@ def image_to_numpy(msg: Any) -> np.ndarray:
     """
     height = _int_field(msg, "height")
     width = _int_field(msg, "width")
-    encoding = str(_field(msg, "encoding"))
+    encoding = _encoding_name(msg)
     enc = lookup_encoding(encoding)
     step = _int_field(msg, "step")
-    big_endian = bool(_int_field(msg, "is_bigendian"))
+    big_endian = _big_endian(msg)
     if height == 0 or width == 0:
-        raise ImageFormatError(f"the image is empty (height {height}, width {width})")
+        raise ImageFormatError(
+            f"the image is empty (height {height}, width {width}); the camera driver sent a "
+            "frame without pixels"
+        )
     row_bytes = width * enc.bytes_per_pixel
     if step < row_bytes:
         raise ImageFormatError(
             f"step {step} < width*bytes_per_pixel {row_bytes} for {encoding} "
-            f"(width {width}, {enc.bytes_per_pixel} bytes per pixel)"
+            f"(width {width}, {enc.bytes_per_pixel} bytes per pixel); step must be at least "
+            "one row of pixels: the header is corrupt or encoding names the wrong format"
         )
     if enc.kind in ("uyvy", "yuyv") and width % 2:
         raise ImageFormatError(f"width {width} must be even for {encoding} (2 pixels share U, V)")
@@ -179,7 +221,7 @@ def image_to_numpy(msg: Any) -> np.ndarray:
     if buf.size != step * height:
         raise ImageFormatError(
             f"data has {buf.size} bytes, expected step*height = {step * height} "
-            f"(step {step}, height {height})"
+            f"(step {step}, height {height}); the frame was cut short or its header is wrong"
         )
     # A (H, row_bytes) view: the padding at the end of each row is skipped, not copied.
     rows = buf.reshape(height, step)[:, :row_bytes]
@@ -188,7 +230,13 @@ def image_to_numpy(msg: Any) -> np.ndarray:
         # to native order: a copy only when the bytes must be swapped
         rows = rows.view(np.uint16) if rows.dtype.isnative else rows.astype(np.uint16)
     pixels = rows.reshape(height, width, enc.channels)
-    return _to_bgr(pixels, enc)
+    try:
+        return _to_bgr(pixels, enc)
+    except cv2.error as err:  # e.g. a mosaic too small to demosaic
+        raise ImageFormatError(
+            f"a {width}x{height} {encoding} image cannot be converted to BGR "
+            f"({err.msg.strip() if hasattr(err, 'msg') else err})"
+        ) from None
 
 
 def _to_bgr(pixels: np.ndarray, enc: _Encoding) -> np.ndarray:
@@ -344,9 +392,16 @@ def compressed_to_numpy(msg: Any) -> np.ndarray:
             "'<encoding>; jpeg compressed <encoding>'"
         )
     buf = _as_bytes(_field(msg, "data"))
-    image = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED) if buf.size else None
-    if image is None:
-        raise ImageFormatError(f"data ({buf.size} bytes) does not decode as a {codec} image")
+    check_compressed_header(buf, codec)
+    try:
+        image = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        image = None
+    if image is None or image.dtype not in (np.uint8, np.uint16) or image.size == 0:
+        raise ImageFormatError(
+            f"data ({buf.size} bytes) does not decode as a {codec} image; the frame is "
+            "damaged or was cut short"
+        )
     if image.ndim == 3 and image.shape[2] == 4:
         image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
     # image_transport names the channel order of the compressed pixels after the codec;
@@ -357,3 +412,4 @@ def compressed_to_numpy(msg: Any) -> np.ndarray:
     if image.ndim == 3 and original.strip().lower().startswith(("mono", "8uc1", "16uc1")):
         image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     return image
+

@@ -8,6 +8,7 @@ keyed by the dotted ROS name (``{"board.cols": 19, ...}``).
 
 from __future__ import annotations
 
+import math
 import os
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass
@@ -42,10 +43,27 @@ def _non_negative(value: Any) -> str | None:
     return None if value >= 0 else "must be >= 0"
 
 
+def _a_name(value: Any) -> str | None:
+    return None if str(value).strip() else "must not be empty"
+
+
+def _dictionary(value: Any) -> str | None:
+    import cv2
+
+    if str(value).startswith("DICT_") and isinstance(getattr(cv2.aruco, str(value), None), int):
+        return None
+    names = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
+    return f"is not an OpenCV predefined dictionary; allowed: {', '.join(names)}"
+
+
+# How each range check reads after "expected an integer" or "expected a number".
+_RANGE_WORDS: dict[Any, str] = {_positive: " > 0", _non_negative: " >= 0"}
+
+
 PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("board.type", "marker_grid", "Board layout.", choices=("marker_grid",)),
     ParamSpec("board.dictionary", "DICT_6X6_1000",
-              "OpenCV predefined ArUco dictionary name of the markers."),
+              "OpenCV predefined ArUco dictionary name of the markers.", check=_dictionary),
     ParamSpec("board.cols", 19, "Markers per row.", check=_positive),
     ParamSpec("board.rows", 9, "Markers per column.", check=_positive),
     ParamSpec("board.marker_length", 0.06, "Side of a marker's outer black square, metres.",
@@ -76,9 +94,11 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("calibrate.zero_tangent_dist", False,
               "Hold the tangential distortion at zero, p1 = p2 = 0 (plumb_bob and "
               "rational_polynomial; equidistant has none)."),
-    ParamSpec("camera_name", "camera", "Name written into the calibration file."),
+    ParamSpec("camera_name", "camera", "Name written into the calibration file.",
+              check=_a_name, allowed="a non-empty name"),
     ParamSpec("output_file", "",
-              "Calibration YAML to write; empty means ~/.ros/camera_info/<camera_name>.yaml."),
+              "Calibration YAML to write; empty means ~/.ros/camera_info/<camera_name>.yaml.",
+              allowed="a file path, or empty"),
     ParamSpec("commit", False, "Send the result to the camera driver's set_camera_info."),
     # Node-only: how the calibrator node listens and when it may solve.
     ParamSpec("image_transport", "raw",
@@ -117,34 +137,41 @@ def defaults() -> dict[str, ParamValue]:
     return {s.name: s.default for s in PARAMETERS}
 
 
+def allowed_text(spec: ParamSpec) -> str:
+    """The values ``spec`` allows, in words: ``true or false``, ``an integer > 0``, ..."""
+    want = type(spec.default)
+    if spec.choices:
+        return "one of " + ", ".join(spec.choices)
+    if want is bool:
+        return "true or false"
+    words = {int: "an integer", float: "a number"}.get(want, "a string")
+    text = words + _RANGE_WORDS.get(spec.check, "")
+    return f"{text} ({spec.allowed})" if spec.allowed else text
+
+
 def _coerce(spec: ParamSpec, value: Any) -> ParamValue:
     want = type(spec.default)
+    wrong = ParameterError(
+        f"parameter '{spec.name}': expected {allowed_text(spec)}, got {value!r}")
     if want is bool:
         if isinstance(value, bool):
             return value
         if isinstance(value, str) and value.lower() in ("true", "false"):
             return value.lower() == "true"
-        raise ParameterError(f"parameter '{spec.name}': expected true or false, got {value!r}")
-    if want is int:
-        if isinstance(value, bool):
-            raise ParameterError(f"parameter '{spec.name}': expected an integer, got {value!r}")
-        try:
-            f = float(value)
-        except (TypeError, ValueError):
-            raise ParameterError(
-                f"parameter '{spec.name}': expected an integer, got {value!r}") from None
-        if f != int(f):
-            raise ParameterError(f"parameter '{spec.name}': expected an integer, got {value!r}")
-        return int(f)
-    if want is float:
-        if isinstance(value, bool):
-            raise ParameterError(f"parameter '{spec.name}': expected a number, got {value!r}")
-        try:
-            return float(value)
-        except (TypeError, ValueError):
-            raise ParameterError(
-                f"parameter '{spec.name}': expected a number, got {value!r}") from None
-    return str(value)
+        raise wrong
+    if want is str and value is None:  # YAML's empty value: ``output_file:``
+        return ""
+    if isinstance(value, bool | list | dict | tuple | set) or value is None:
+        raise wrong
+    if want is str:
+        return str(value)
+    try:
+        f = float(value)
+    except (TypeError, ValueError, OverflowError):
+        raise wrong from None
+    if not math.isfinite(f) or (want is int and f != int(f)):
+        raise wrong
+    return int(f) if want is int else f
 
 
 def validate(values: Mapping[str, Any]) -> dict[str, ParamValue]:
@@ -163,6 +190,8 @@ def validate(values: Mapping[str, Any]) -> dict[str, ParamValue]:
         if spec.choices and v not in spec.choices:
             raise ParameterError(
                 f"parameter '{name}': {v!r} is not one of {', '.join(spec.choices)}")
+        if isinstance(v, str) and "\n" in v:
+            raise ParameterError(f"parameter '{name}': {v!r} must be one line")
         if spec.check is not None:
             complaint = spec.check(v)
             if complaint:

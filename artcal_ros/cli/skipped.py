@@ -1,0 +1,71 @@
+"""Frames the ``artcal`` verbs skip (unreadable files, broken messages), counted by cause.
+
+One bad frame among hundreds should not cost a user the calibration: the verbs skip it,
+count it, and name the causes once in their summary::
+
+    skipped 2 broken frames: 1 unknown encoding 'yuv_weird'; 1 cannot read image b.png: ...
+"""
+
+from __future__ import annotations
+
+import os
+from collections import Counter
+from pathlib import Path
+
+import numpy as np
+
+from artcal_ros.core.errors import ArtcalError, ImageFormatError
+
+
+class SkippedFrames:
+    """Counts skipped frames by cause (the error text up to its first ';')."""
+
+    def __init__(self) -> None:
+        self.causes: Counter[str] = Counter()
+
+    def add(self, error: ArtcalError | str) -> None:
+        """Count one skipped frame; ``error`` says why."""
+        text = str(error).split(";", 1)[0].strip() or "unknown cause"
+        self.causes[text] += 1
+
+    @property
+    def count(self) -> int:
+        """Frames skipped."""
+        return sum(self.causes.values())
+
+    def summary(self) -> str:
+        """``skipped 3 broken frames: 2 <cause>; 1 <cause>``, or "" when none was skipped."""
+        if not self.count:
+            return ""
+        plural = "s" if self.count != 1 else ""
+        causes = "; ".join(f"{n} {cause}" for cause, n in self.causes.most_common())
+        return f"skipped {self.count} broken frame{plural}: {causes}"
+
+
+def read_image_file(path: str) -> np.ndarray:
+    """An image file as (H, W) uint8/uint16 or (H, W, 3) BGR uint8/uint16.
+
+    Raises:
+        ImageFormatError: naming the file and why it cannot be used (missing, a directory,
+            not an image OpenCV decodes, a pixel type other than 8 or 16 bit).
+    """
+    import cv2
+
+    if os.path.isdir(path):
+        raise ImageFormatError(f"cannot read image {path}: it is a directory (give the image "
+                               f"files in it, e.g. {Path(path) / '*.png'})")
+    if not os.path.isfile(path):
+        raise ImageFormatError(f"cannot read image {path}: no such file")
+    try:
+        image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        image = None
+    if image is None:
+        raise ImageFormatError(f"cannot read image {path}: not an image OpenCV can decode")
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
+    if image.dtype not in (np.uint8, np.uint16) or image.ndim not in (2, 3) or (
+            image.ndim == 3 and image.shape[2] not in (1, 3)):
+        raise ImageFormatError(f"cannot use image {path}: {image.dtype} pixels of shape "
+                               f"{image.shape}; save it as 8- or 16-bit grey or colour")
+    return np.asarray(image)
