@@ -25,10 +25,11 @@ to run; the ratios to OpenCV in the same run are what to compare.
 from __future__ import annotations
 
 import argparse
+import contextlib
 import itertools
 import os
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -114,15 +115,21 @@ def empty_scene(n: int, seed: int) -> list[RenderedView]:
     return out
 
 
-def set_threads(n: int) -> None:
-    """Use ``n`` threads in OpenCV and (when it is installed) numba."""
+@contextlib.contextmanager
+def threads_used(n: int) -> Iterator[None]:
+    """Run the block with ``n`` threads in OpenCV and in the detector's kernels
+    (``ARTCAL_THREADS``); the previous settings come back afterwards."""
+    before_cv, before_env = cv2.getNumThreads(), os.environ.get("ARTCAL_THREADS")
     cv2.setNumThreads(n)
-    os.environ["NUMBA_NUM_THREADS"] = str(n)
+    os.environ["ARTCAL_THREADS"] = str(n)
     try:
-        import numba  # type: ignore[import-not-found]
-    except ImportError:
-        return
-    numba.set_num_threads(min(n, numba.config.NUMBA_NUM_THREADS))
+        yield
+    finally:
+        cv2.setNumThreads(before_cv)
+        if before_env is None:
+            os.environ.pop("ARTCAL_THREADS", None)
+        else:
+            os.environ["ARTCAL_THREADS"] = before_env
 
 
 def _median_ms(fn: Callable[[np.ndarray], object], frames: list[np.ndarray]) -> float:
@@ -179,7 +186,11 @@ def time_frames(name: str, views: list[RenderedView], threads: int, repeats: int
     Each of ``repeats`` rounds times them in turn on all frames (so slow spells of a
     shared machine hit them alike); the medians are over all rounds.
     """
-    set_threads(threads)
+    with threads_used(threads):
+        return _time_frames(name, views, threads, repeats)
+
+
+def _time_frames(name: str, views: list[RenderedView], threads: int, repeats: int) -> Row:
     board = Board()
     frames = [v.image for v in views]
     aruco = cv2.aruco.ArucoDetector(board.dictionary, cv2.aruco.DetectorParameters())
