@@ -36,6 +36,7 @@ import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
+from artcal_ros.core.detect.linalg import nanmedian_rows
 from artcal_ros.core.detections import Detections
 
 __all__ = ["MarkerTracker", "TrackerConfig"]
@@ -56,15 +57,18 @@ class TrackerConfig:
             its neighbours, as a fraction of the marker pitch in the image.
         max_residual: largest misfit of a neighbourhood's homography at its centres, as a
             fraction of the pitch.
+        max_wrong_modules: most modules (border and code, read at the tracked quad) that
+            may disagree with the marker's printed pattern.
     """
 
     max_width: int = 960
-    history: int = 90
+    history: int = 45
     window_px: int = 31
     levels: int = 2
     reach: int = 2
     max_jump: float = 0.3
     max_residual: float = 0.1
+    max_wrong_modules: int = 4
 
 
 @dataclass(frozen=True)
@@ -100,7 +104,10 @@ def _small_gray(image: np.ndarray, max_width: int) -> tuple[np.ndarray, float]:
 
 
 def _local_homographies(src: np.ndarray, dst: np.ndarray, valid: np.ndarray) -> np.ndarray:
-    """(M, 3, 3) homographies, each fitted (DLT) to the valid ones of its K point pairs.
+    """(M, 3, 3) homographies, each fitted to the valid ones of its K point pairs.
+
+    Linear least squares with h33 = 1 (the points are centred on the marker, where the
+    homography cannot vanish), all M 8 x 8 normal equations solved at once.
 
     Args:
         src, dst: (M, K, 2) point pairs, already centred and scaled near unit size.
@@ -109,13 +116,16 @@ def _local_homographies(src: np.ndarray, dst: np.ndarray, valid: np.ndarray) -> 
     m = valid.shape[0]
     x, y = src[..., 0], src[..., 1]
     u, v = dst[..., 0], dst[..., 1]
-    w = valid.astype(np.float64)
     zero, one = np.zeros_like(x), np.ones_like(x)
-    rows_u = np.stack([x, y, one, zero, zero, zero, -u * x, -u * y, -u], axis=-1)
-    rows_v = np.stack([zero, zero, zero, x, y, one, -v * x, -v * y, -v], axis=-1)
-    a = np.concatenate([rows_u, rows_v], axis=1) * np.concatenate([w, w], axis=1)[..., None]
-    _, _, vt = np.linalg.svd(a)
-    return vt[:, -1].reshape(m, 3, 3)
+    rows_u = np.stack([x, y, one, zero, zero, zero, -u * x, -u * y], axis=-1)
+    rows_v = np.stack([zero, zero, zero, x, y, one, -v * x, -v * y], axis=-1)
+    w = valid.astype(np.float64)[..., None]
+    a = np.concatenate([rows_u * w, rows_v * w], axis=1)          # (M, 2K, 8)
+    rhs = np.concatenate([u * w[..., 0], v * w[..., 0]], axis=1)  # (M, 2K)
+    ata = np.einsum("mki,mkj->mij", a, a) + 1e-9 * np.eye(8)
+    atb = np.einsum("mki,mk->mi", a, rhs)
+    h = np.linalg.solve(ata, atb[..., None])[..., 0]
+    return np.concatenate([h, np.ones((m, 1))], axis=1).reshape(m, 3, 3)
 
 
 def _apply(h: np.ndarray, pts: np.ndarray) -> np.ndarray:
@@ -153,6 +163,16 @@ class MarkerTracker:
                                   for dc in range(-reach, reach + 1)])
         self._object_corners = board.object_corners()[:, :, :2] / board.pitch
         self._object_centers = board.object_centers()[:, :2] / board.pitch
+        # every module centre of every marker, relative to its centre, in pitch units, and
+        # whether it is printed white
+        n = board.bits + 2
+        f = (np.arange(n) + 0.5) / n
+        tl, tr, bl = (self._object_corners[:, k] for k in (0, 1, 3))
+        grid = (tl[:, None, None] + f[None, None, :, None] * (tr - tl)[:, None, None]
+                + f[None, :, None, None] * (bl - tl)[:, None, None])      # (N, n, n, 2)
+        self._modules = (grid - self._object_centers[:, None, None]).reshape(len(tl), -1, 2)
+        self._white = np.stack([board.marker_modules(int(i)) for i in board.ids]
+                               ).reshape(len(tl), -1)
 
     def reset(self) -> None:
         """Forget every frame and marker (another camera, or a new image size)."""
@@ -209,9 +229,10 @@ class MarkerTracker:
         others = have & (index != np.arange(len(ids))[:, None])
         enough = others.sum(axis=1) >= 3
         near = np.where(others[..., None], motion[np.maximum(index, 0)], np.nan)
-        median = np.zeros((len(ids), 2), np.float32)
+        median = np.zeros((len(ids), 2))
         if enough.any():
-            median[enough] = np.nanmedian(near[enough], axis=1)
+            for axis in range(2):
+                median[enough, axis] = nanmedian_rows(near[enough, :, axis])
         pitch = self._pitch_px(ids, centers, index, others)
         jump = np.linalg.norm(motion - median, axis=1)
         return np.asarray(valid & enough & (jump <= self.config.max_jump * pitch))
@@ -224,15 +245,13 @@ class MarkerTracker:
                                - self._object_centers[ids][:, None], axis=2)
         with np.errstate(divide="ignore", invalid="ignore"):
             ratio = np.where(have & (d_obj > 0), d_img / d_obj, np.nan)
-        out = np.zeros(len(ids))
-        rows = np.isfinite(ratio).any(axis=1)
-        if rows.any():
-            out[rows] = np.nanmedian(ratio[rows], axis=1)
-        return out
+        out = nanmedian_rows(ratio) if len(ids) else np.zeros(0)
+        return np.where(np.isfinite(out), out, 0.0)
 
-    def _quads(self, ids: np.ndarray, centers: np.ndarray
+    def _quads(self, ids: np.ndarray, centers: np.ndarray, gray: np.ndarray
                ) -> tuple[np.ndarray, np.ndarray]:
-        """(M, 4, 2) corners from each neighbourhood's homography, and (M,) bool fitted."""
+        """(M, 4, 2) corners from each neighbourhood's homography, and (M,) bool: fitted,
+        and the marker's printed pattern is where the quad says (read in ``gray``)."""
         if len(ids) == 0:
             return np.zeros((0, 4, 2)), np.zeros(0, bool)
         index, have = self._neighbourhood(ids, np.ones(len(ids), bool))
@@ -247,7 +266,28 @@ class MarkerTracker:
         corners = self._object_corners[ids] - self._object_centers[ids][:, None]
         quads = _apply(hom, corners) * pitch[:, None, None] + centers[:, None]
         ok = enough & (residual <= self.config.max_residual) & np.isfinite(quads).all(axis=(1, 2))
+        ok &= self._pattern_matches(ids, hom, pitch, centers, gray)
         return quads, ok
+
+    def _pattern_matches(self, ids: np.ndarray, hom: np.ndarray, pitch: np.ndarray,
+                         centers: np.ndarray, gray: np.ndarray) -> np.ndarray:
+        """(M,) bool: the modules read at each tracked quad show the marker's pattern.
+
+        A neighbourhood that slipped together by a whole marker keeps its shape and its
+        motion agrees with itself; what it cannot keep is the pattern under each quad.
+        """
+        pts = _apply(hom, self._modules[ids]) * pitch[:, None, None] + centers[:, None]
+        pts = np.where(np.isfinite(pts), pts, -1.0).astype(np.float32)
+        vals = cv2.remap(gray, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
+                         borderMode=cv2.BORDER_CONSTANT, borderValue=0).astype(np.float64)
+        white = self._white[ids]
+        with np.errstate(invalid="ignore", divide="ignore"):
+            mean_white = (vals * white).sum(axis=1) / white.sum(axis=1)
+            mean_black = (vals * ~white).sum(axis=1) / (~white).sum(axis=1)
+        threshold = 0.5 * (mean_white + mean_black)
+        wrong = ((vals > threshold[:, None]) != white).sum(axis=1)
+        return np.asarray((mean_white - mean_black > 8.0)
+                          & (wrong <= self.config.max_wrong_modules))
 
     def track(self, image: np.ndarray) -> tuple[int, Detections]:
         """Follow the markers into ``image``; its frame index and the approximate markers.
@@ -277,7 +317,11 @@ class MarkerTracker:
             tracks = self._tracks
         if tracks is None:
             return index, Detections.empty((w, h), "tracked")
-        quads, ok = self._quads(tracks.ids, tracks.centers.astype(np.float64))
+        quads, ok = self._quads(tracks.ids, tracks.centers.astype(np.float64), gray)
+        with self._lock:
+            if self._tracks is tracks:  # a marker that failed a check is followed no more
+                self._tracks = _Tracks(tracks.frame, tracks.ids[ok], tracks.centers[ok],
+                                       tracks.velocity[ok])
         ids, centers = tracks.ids[ok], tracks.centers[ok].astype(np.float64) / scale
         order = np.argsort(ids)
         return index, Detections(ids[order], quads[ok][order] / scale, centers[order], (w, h),
