@@ -68,7 +68,7 @@ def render_overlay(image: np.ndarray, dets: Detections | None, counts: np.ndarra
     for r, c in zip(*np.nonzero(counts > 0), strict=True):
         covered[r * h // rows:(r + 1) * h // rows, c * w // cols:(c + 1) * w // cols] = 1
     green = np.ascontiguousarray(out[:, :, 1])
-    cv2.add(green, _GREEN[1] // 4, dst=green, mask=covered)
+    cv2.add(green, np.full_like(green, _GREEN[1] // 4), dst=green, mask=covered)
     out[:, :, 1] = green
     scale = max(0.4, min(w, h) / 900.0)
     thick = max(1, round(scale * 2))
