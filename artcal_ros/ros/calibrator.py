@@ -306,6 +306,10 @@ class CalibratorNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run artcal_ros calibrator`` (console script ``calibrator``)."""
+    # Precise detection runs in the background on one thread of compiled kernels, so the
+    # other core stays free for the camera's frames (tracking, overlay, DDS); set
+    # ARTCAL_THREADS to give it more.
+    os.environ.setdefault("ARTCAL_THREADS", "1")
     rclpy.init(args=args)
     try:
         node = CalibratorNode()
