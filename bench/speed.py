@@ -28,6 +28,7 @@ import argparse
 import contextlib
 import itertools
 import os
+import sys
 import time
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass
@@ -227,13 +228,30 @@ def _time_frames(name: str, views: list[RenderedView], threads: int, repeats: in
 
 
 def run(names: list[str], n_frames: int, threads: list[int], seed: int = 31337,
-        empty: bool = True, repeats: int = 1) -> list[Row]:
-    """Render the frame sets and time them; rows in (frames, threads) order."""
-    sets = {name: sweep(name, n_frames, seed + i) for i, name in enumerate(names)}
+        empty: bool = True, repeats: int = 1, progress: bool = False) -> list[Row]:
+    """Render the frame sets and time them; rows in (frames, threads) order.
+
+    With ``progress``, a line on stderr as each set is rendered and each row timed.
+    """
+    def say(text: str) -> None:
+        if progress:
+            print(f"  {time.strftime('%H:%M:%S')} {text}", file=sys.stderr, flush=True)
+
+    sets: dict[str, list[RenderedView]] = {}
+    for i, name in enumerate(names):
+        sets[name] = sweep(name, n_frames, seed + i)
+        say(f"rendered {n_frames} frames {name}")
     if empty:
         sets[EMPTY] = empty_scene(max(2, n_frames // 2), seed + 99)
-    return [time_frames(name, frames, t, repeats) for name, frames in sets.items()
-            for t in threads]
+        say(f"rendered {EMPTY}")
+    rows = []
+    for name, frames in sets.items():
+        for t in threads:
+            rows.append(time_frames(name, frames, t, repeats))
+            r = rows[-1]
+            say(f"timed {name}, {t} thread(s): cold {r.cold_ms:.0f} ms, tracked "
+                f"{r.tracked_ms:.1f} ms, OpenCV {r.opencv_ms:.0f} ms")
+    return rows
 
 
 def table(rows: list[Row]) -> str:
@@ -319,7 +337,7 @@ def main(argv: list[str] | None = None) -> int:
     names = list(RESOLUTIONS)
     print(f"# Detection speed: {n} frames per resolution, smooth sweep, median ms per frame\n",
           flush=True)
-    rows = run(names, n, [1, 2], repeats=1 if args.quick else 2)
+    rows = run(names, n, [1, 2], repeats=1 if args.quick else 2, progress=True)
     print(table(rows))
     plot(rows, args.plot, 2)
     print(f"\nplot: {args.plot}")
