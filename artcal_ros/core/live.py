@@ -76,7 +76,7 @@ class LiveCounts:
 
     Attributes:
         measured: frames detected precisely.
-        queued: frames waiting now.
+        queued: new views waiting for (or in) precise detection now.
         refused: new views not held because the queue was full.
     """
 
@@ -208,9 +208,9 @@ class LiveDetection:
     # --- state ---------------------------------------------------------------------
     def counts(self) -> LiveCounts:
         """Frames measured, waiting and refused so far."""
+        pending = self.collector.pending
         with self._cond:
-            return LiveCounts(self._measured, len(self._queue) + (1 if self._busy else 0),
-                              self._refused)
+            return LiveCounts(self._measured, pending, self._refused)
 
     def wait_idle(self, timeout: float, stopping: threading.Event | None = None) -> bool:
         """Wait until no held view waits for its precise detection; whether that came."""
