@@ -28,10 +28,11 @@ from typing import Any
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from sensor_msgs.srv import SetCameraInfo
 from std_srvs.srv import Trigger
@@ -47,6 +48,7 @@ from artcal_ros.ros import msgs
 from artcal_ros.ros.diagnostics import Counters, diagnostic_array
 from artcal_ros.ros.latest import LatestWorker
 from artcal_ros.ros.parameters import check_update, declare_parameters
+from artcal_ros.ros.signals import StopSignals, shut_down, spin_until_stopped
 
 IMAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                        reliability=ReliabilityPolicy.BEST_EFFORT,
@@ -196,8 +198,8 @@ class CalibratorNode(Node):
             self._solving.release()
         response.success = outcome.success
         response.message = outcome.message
-        if not self.context.ok():
-            return response  # shutting down: rosout is gone, nobody reads the log
+        if self._stopping.is_set() or not self.context.ok():
+            return response  # shutting down: rosout may be gone, nobody reads the log
         # rclpy refuses two severities from one call site, hence two calls.
         if outcome.success:
             self.get_logger().info(f"~/calibrate: {outcome.message}")
@@ -284,7 +286,8 @@ class CalibratorNode(Node):
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run artcal_ros calibrator`` (console script ``calibrator``)."""
-    rclpy.init(args=args)
+    stop = StopSignals.install()
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     try:
         node = CalibratorNode()
     except (ParameterError, ArtcalError) as e:
@@ -293,15 +296,12 @@ def main(args: list[str] | None = None) -> int:
         return 2
     executor = MultiThreadedExecutor(num_threads=4)
     executor.add_node(node)
+    spin_thread = None
     try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spin_thread = spin_until_stopped(executor, stop)
     finally:
         node.stop()
-        executor.shutdown(timeout_sec=1.0)
-        node.destroy_node()
-        rclpy.try_shutdown()
+        shut_down(node, executor, spin_thread)
     return _exit_status_when_threads_done(0)
 
 
