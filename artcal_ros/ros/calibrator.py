@@ -48,6 +48,7 @@ from artcal_ros.ros import msgs
 from artcal_ros.ros.diagnostics import Counters, diagnostic_array
 from artcal_ros.ros.latest import LatestWorker
 from artcal_ros.ros.parameters import check_update, declare_parameters
+from artcal_ros.ros.session import open_session
 from artcal_ros.ros.signals import StopSignals, shut_down, spin_until_stopped
 
 IMAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
@@ -90,6 +91,8 @@ class CalibratorNode(Node):
         # collection's changes in order, and nothing is published after stop().
         self._output_lock = threading.Lock()
         self._closed = False
+        self.session = open_session(self, self.board, self.collector, self.params,
+                                    self._stopping)
 
         images = MutuallyExclusiveCallbackGroup()
         services = ReentrantCallbackGroup()
@@ -282,6 +285,7 @@ class CalibratorNode(Node):
         with self._output_lock:  # waits for a publish in progress
             self._closed = True
         self.worker.stop(timeout=0.5)
+        self.session.close()  # the views as they are now, for resume
 
 
 def main(args: list[str] | None = None) -> int:

@@ -11,7 +11,7 @@ import os
 import subprocess
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -65,9 +65,12 @@ class NodeProcess(processes.NodeProcess):
     in ``log_dir/<name>.log``), with test failures as AssertionError."""
 
     def __init__(self, script: str, ros_args: Sequence[str], log_dir: Path,
-                 name: str | None = None, *, per_test: bool = True) -> None:
+                 name: str | None = None, *, per_test: bool = True,
+                 env: Mapping[str, str] | None = None) -> None:
+        """``env``: the environment to run in (default: this process's)."""
         super().__init__([str(BIN / script), "--ros-args", *ros_args],
-                         log_dir / f"{name or script}.log", name=name or script, cwd=ROOT)
+                         log_dir / f"{name or script}.log", name=name or script, cwd=ROOT,
+                         env=env)
         if per_test:  # else the fixture that started it stops it
             RUNNING.append(self)
 
