@@ -38,6 +38,7 @@ from sensor_msgs.srv import SetCameraInfo
 from std_srvs.srv import Trigger
 
 from artcal_ros.core.board import Board
+from artcal_ros.core.broken_frames import broken_cause
 from artcal_ros.core.calibrate.session import SolveOutcome, busy_threads, run_solve
 from artcal_ros.core.camera_info import as_camera_info
 from artcal_ros.core.coverage import CoverageConfig, ViewCollector
@@ -137,9 +138,7 @@ class CalibratorNode(Node):
             image = compressed_to_numpy(msg) if isinstance(msg, CompressedImage) \
                 else image_to_numpy(msg)
         except ImageFormatError as e:
-            self.counters.frame_broken()
-            self.get_logger().warning(f"skipping a broken frame: {e}",
-                                      throttle_duration_sec=5.0)
+            self._on_broken_frame(e)
             return
         self.frame_id = msg.header.frame_id or self.frame_id
         dets = self.detector.detect(image)
@@ -156,6 +155,13 @@ class CalibratorNode(Node):
         with self._output_lock:
             if not self._closed:
                 self.overlay_pub.publish(overlay)
+
+    def _on_broken_frame(self, error: ImageFormatError) -> None:
+        cause = broken_cause(error)
+        if self.counters.frame_broken(cause) and not self._stopping.is_set():
+            self.get_logger().warning(
+                f"skipping broken frames: {error} (logged once per cause; the diagnostics "
+                "count them under 'broken causes')")
 
     def _on_worker_error(self, error: BaseException) -> None:
         self.counters.frame_failed()

@@ -9,6 +9,7 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from std_msgs.msg import Header
 
+from artcal_ros.core.broken_frames import BrokenTally
 from artcal_ros.core.coverage import Readiness
 
 
@@ -23,6 +24,7 @@ class CountsReport:
         failed: frames where detection raised an unexpected error.
         markers_last: markers in the last processed frame.
         new_broken, new_failed: broken and failed frames since the previous report.
+        broken_causes: ``cause: n; ...`` for every kind of broken frame seen so far.
     """
 
     seen: int
@@ -32,6 +34,7 @@ class CountsReport:
     markers_last: int
     new_broken: int = 0
     new_failed: int = 0
+    broken_causes: str = ""
 
 
 class Counters:
@@ -50,6 +53,7 @@ class Counters:
         self._broken = 0
         self._failed = 0
         self._markers_last = 0
+        self._broken_causes = BrokenTally()
         self._broken_reported = 0
         self._failed_reported = 0
 
@@ -64,10 +68,11 @@ class Counters:
             self._processed += 1
             self._markers_last = markers
 
-    def frame_broken(self) -> None:
-        """A frame could not be decoded."""
+    def frame_broken(self, cause: str = "unknown") -> bool:
+        """A frame could not be decoded, for ``cause``; True if the first of that cause."""
         with self._lock:
             self._broken += 1
+            return self._broken_causes.add(cause)
 
     def frame_failed(self) -> None:
         """Detection raised an unexpected error on a frame."""
@@ -85,7 +90,8 @@ class Counters:
         with self._lock:
             out = CountsReport(self._seen, self._processed, self._broken, self._failed,
                                self._markers_last, self._broken - self._broken_reported,
-                               self._failed - self._failed_reported)
+                               self._failed - self._failed_reported,
+                               self._broken_causes.summary())
             self._broken_reported = self._broken
             self._failed_reported = self._failed
             return out
@@ -106,7 +112,8 @@ def diagnostic_array(node_name: str, camera_name: str, counts: CountsReport, dro
     """
     problems = []
     if counts.new_broken:
-        problems.append(f"{counts.new_broken} broken frames skipped in the last second")
+        problems.append(f"{counts.new_broken} broken frames skipped in the last second "
+                        f"(so far: {counts.broken_causes})")
     if counts.new_failed:
         problems.append(f"detection failed on {counts.new_failed} frames in the last second")
     level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
@@ -117,6 +124,7 @@ def diagnostic_array(node_name: str, camera_name: str, counts: CountsReport, dro
         "frames used": readiness.views,
         "frames dropped (busy)": dropped,
         "frames broken": counts.broken,
+        "broken causes": counts.broken_causes,
         "frames failed": counts.failed,
         "markers in last frame": counts.markers_last,
         "views": readiness.views,

@@ -269,7 +269,15 @@ def test_both_qos_reach_the_node_and_broken_frames_are_skipped(
     assert fed.count("frames broken") == fed.broken
     assert fed.count("frames seen") == sent + fed.broken
     assert fed.count("frames dropped (busy)") == 0
-    assert "broken frame" in fed.node.output()  # the throttled warning
+    # Every cause is named with its count in the diagnostics and logged once, however
+    # many frames of it came (the first cause is sent twice).
+    causes = diagnostics_values(fed.diagnostics, "cal_fed")["broken causes"]
+    counts = dict(part.rsplit(": ", 1) for part in causes.split("; "))
+    assert sum(int(n) for n in counts.values()) == fed.broken, causes
+    assert len(counts) == 3 and "unknown encoding 'yuv_unheard_of'" in counts, causes
+    assert max(int(n) for n in counts.values()) >= 2, causes
+    logged = [line for line in fed.node.output().splitlines() if "skipping broken frames" in line]
+    assert len(logged) == len(counts), "\n".join(logged)
     warned = [st for array in list(fed.diagnostics) for st in array.status
               if st.name.startswith("cal_fed:") and st.level == DiagnosticStatus.WARN]
     assert warned and "broken frames skipped" in warned[0].message
