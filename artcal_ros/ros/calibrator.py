@@ -38,6 +38,7 @@ from sensor_msgs.srv import SetCameraInfo
 from std_srvs.srv import Trigger
 
 from artcal_ros.core.board import Board
+from artcal_ros.core.board_check import BoardCheck
 from artcal_ros.core.broken_frames import broken_cause
 from artcal_ros.core.calibrate.session import SolveOutcome, busy_threads, run_solve
 from artcal_ros.core.camera_info import as_camera_info
@@ -78,6 +79,7 @@ class CalibratorNode(Node):
         from artcal_ros.core.detect import Detector, DetectorConfig
 
         self.detector = Detector(self.board, DetectorConfig())
+        self.board_check = BoardCheck(self.board)  # names a print that is not this board
         # Coverage is counted on the points the solve will use, as the solve counts it.
         self.collector = ViewCollector(
             self.board, CoverageConfig(min_views=int(self.params["min_views"]),
@@ -142,6 +144,7 @@ class CalibratorNode(Node):
             return
         self.frame_id = msg.header.frame_id or self.frame_id
         dets = self.detector.detect(image)
+        self.board_check.observe(image, len(dets))
         self.counters.frame_processed(len(dets))
         kept = self.collector.add(dets)
         if kept:
@@ -189,7 +192,7 @@ class CalibratorNode(Node):
         self.diag_pub.publish(diagnostic_array(
             self.get_name(), str(self.params["camera_name"]), self.counters.report(),
             dropped, self.collector.readiness(), self.last_summary,
-            self.get_clock().now().to_msg()))
+            self.get_clock().now().to_msg(), board_mismatch=self.board_check.finding))
 
     # --- services -----------------------------------------------------------------
     def _on_calibrate(self, request: Trigger.Request, response: Trigger.Response
@@ -222,7 +225,9 @@ class CalibratorNode(Node):
         snap = self.collector.snapshot()
         readiness, views, size = snap.readiness, snap.views, snap.image_size
         if not readiness.enough_views:
-            return SolveOutcome(False, f"not enough views to calibrate: {readiness.summary()}")
+            mismatch = self.board_check.finding
+            return SolveOutcome(False, f"not enough views to calibrate: {readiness.summary()}"
+                                + (f"; {mismatch}" if mismatch else ""))
         assert size is not None  # there are views
         self.get_logger().info(f"solving from {len(views)} views ({readiness.summary()})")
         outcome = run_solve(views, self.board, size, self.params, readiness,

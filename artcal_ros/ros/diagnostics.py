@@ -98,19 +98,22 @@ class Counters:
 
 
 def diagnostic_array(node_name: str, camera_name: str, counts: CountsReport, dropped: int,
-                     readiness: Readiness, last_solve: str, stamp: Time) -> DiagnosticArray:
+                     readiness: Readiness, last_solve: str, stamp: Time, *,
+                     board_mismatch: str = "") -> DiagnosticArray:
     """One DiagnosticStatus named after the node: counts, coverage and readiness.
 
     Level WARN while broken frames or detection failures keep coming (since the previous
-    report), else OK. ``frames used`` is the views kept in the collection now (it restarts
-    at ~/reset and when the image size changes, as the collection does).
+    report) or while the markers in view are not the board's, else OK. ``frames used`` is
+    the views kept in the collection now (it restarts at ~/reset and when the image size
+    changes, as the collection does).
 
     Args:
         counts: from :meth:`Counters.report`.
         dropped: frames replaced while detection was busy.
         readiness: the collection's state (views, coverage, what is missing).
+        board_mismatch: markers in view that are not the board's, in words (WARN).
     """
-    problems = []
+    problems = [board_mismatch] if board_mismatch else []
     if counts.new_broken:
         problems.append(f"{counts.new_broken} broken frames skipped in the last second "
                         f"(so far: {counts.broken_causes})")
@@ -125,6 +128,7 @@ def diagnostic_array(node_name: str, camera_name: str, counts: CountsReport, dro
         "frames dropped (busy)": dropped,
         "frames broken": counts.broken,
         "broken causes": counts.broken_causes,
+        "board mismatch": board_mismatch,
         "frames failed": counts.failed,
         "markers in last frame": counts.markers_last,
         "views": readiness.views,
