@@ -240,7 +240,8 @@ class CalibratorNode(Node):
         self.info_pub.publish(info)
         self.last_summary = outcome.message
         if self.params["commit"]:
-            return self._commit(info, outcome)
+            committed = self._commit(info, outcome)
+            return committed if outcome.success else replace(committed, success=False)
         return outcome
 
     def _commit(self, info: CameraInfo, outcome: SolveOutcome) -> SolveOutcome:

@@ -333,6 +333,35 @@ def test_calibrate_parameters_set_at_run_time_shape_the_next_solve(fed: Fed,
         set_parameter(probe, "cal_fed", "calibrate.zero_tangent_dist", False)
 
 
+def set_string_parameter(probe: Probe, node_name: str, name: str, value: str) -> None:
+    request = SetParameters.Request(parameters=[ParameterMsg(
+        name=name, value=ParameterValue(type=ParameterType.PARAMETER_STRING,
+                                        string_value=value))])
+    answer = probe.call(SetParameters, f"/{node_name}/set_parameters", request)
+    assert answer.results[0].successful, answer.results[0].reason
+
+
+def test_an_unwritable_output_file_is_named_and_camera_info_still_published(
+        fed: Fed, probe: Probe, tmp_path: Path) -> None:
+    blocker = tmp_path / "a_file"
+    blocker.write_text("a file where the output directory should be")
+    target = blocker / "calibration" / "camera.yaml"
+    infos = probe.collect(CameraInfo, "/camera_info", LATCHED)
+    set_string_parameter(probe, "cal_fed", "output_file", str(target))
+    try:
+        called = time.time() - 1.0  # the node stamps CameraInfo with its (wall) clock
+        answer = probe.call(Trigger, "/cal_fed/calibrate", timeout=120)
+        assert not answer.success, answer.message
+        assert str(target) in answer.message and "not a directory" in answer.message
+        assert "NOT saved" in answer.message and "RMS" in answer.message, answer.message
+        # A CameraInfo of an earlier solve may be latched; this one is stamped after the call.
+        wait_until(lambda: any(i.header.stamp.sec + i.header.stamp.nanosec * 1e-9 > called
+                               and i.k[0] > 0 for i in infos), 20,
+                   "the CameraInfo of the unsaved calibration")
+    finally:
+        set_string_parameter(probe, "cal_fed", "output_file", str(tmp_path / "cal_fed.yaml"))
+
+
 def test_sigint_during_a_solve_exits_promptly(fed: Fed, probe: Probe) -> None:
     client = probe.node.create_client(Trigger, "/cal_fed/calibrate")
     assert client.wait_for_service(timeout_sec=20)
