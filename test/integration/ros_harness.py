@@ -9,6 +9,7 @@ from __future__ import annotations
 import contextlib
 import os
 import subprocess
+import tempfile
 import threading
 import time
 from collections.abc import Callable, Mapping, Sequence
@@ -24,13 +25,19 @@ BIN = ROOT / ".venv" / "bin"
 def configure_ros_env() -> None:
     """Put this test session on its own DDS domain, on this machine only.
 
-    Called at conftest import, before any rclpy context exists; subprocesses inherit it.
+    Called at conftest import, before any rclpy context exists; subprocesses inherit it,
+    and a temporary HOME (``ARTCAL_TEST_HOME``, made once) for what nodes save there.
     ARTCAL_TEST_DOMAIN, when set, chooses the domain (so several pytest processes can share
     one); otherwise a random one is drawn and recorded there.
     """
     if "ARTCAL_TEST_DOMAIN" not in os.environ:
         os.environ["ARTCAL_TEST_DOMAIN"] = str(processes.random_domain_id())
     os.environ.update(processes.private_domain_env(int(os.environ["ARTCAL_TEST_DOMAIN"])))
+    # The nodes save sessions and logs under $HOME/.ros: a home of the test session's own
+    # keeps them out of the user's and apart from other test sessions.
+    if "ARTCAL_TEST_HOME" not in os.environ:
+        os.environ["ARTCAL_TEST_HOME"] = tempfile.mkdtemp(prefix="artcal_test_home_")
+    os.environ["HOME"] = os.environ["ARTCAL_TEST_HOME"]
 
 
 def stop_all() -> None:

@@ -59,3 +59,24 @@ def publish_until(publisher: Any, msg: Any, seen: Callable[[], Any], timeout: fl
             if time.monotonic() > deadline:
                 raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
             time.sleep(0.05)
+
+
+def send_until_counted(publisher: Any, msg: Any, count: Callable[[], int], target: int,
+                       timeout: float, what: str, *, resend_after_s: float = 10.0) -> None:
+    """Publish ``msg`` until ``count()`` (the node's own count of frames received, from its
+    diagnostics) reaches ``target``; resend only when it has not after ``resend_after_s``,
+    so a frame the node received is never sent twice (exact counts stay exact).
+
+    Raises:
+        AssertionError: naming ``what``, after ``timeout`` seconds.
+    """
+    deadline = time.monotonic() + timeout
+    while True:
+        publisher.publish(msg)
+        resend = time.monotonic() + resend_after_s
+        while time.monotonic() < resend:
+            if count() >= target:
+                return
+            if time.monotonic() > deadline:
+                raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
+            time.sleep(0.05)
