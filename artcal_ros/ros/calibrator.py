@@ -14,6 +14,10 @@ Threads: image callbacks only hand the message to a keep-latest worker
 (detection runs there, on the newest frame; frames replaced while it is busy
 are counted as dropped). ``~/calibrate`` runs the solve on its own thread and
 waits for it in a reentrant callback, so images keep flowing meanwhile.
+
+The views collected are saved under ``~/.ros/artcal/<camera_name>/`` every few seconds
+(``resume: true`` continues them after a stop, crash or kill). SIGINT and SIGTERM, any
+number of them, stop the node in order and it exits 0.
 """
 
 from __future__ import annotations

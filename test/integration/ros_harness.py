@@ -102,6 +102,22 @@ class NodeProcess(processes.NodeProcess):
         return status
 
 
+PARAMS = ROOT / "config" / "calibrator.yaml"
+
+
+def calibrator_node(log_dir: Path, name: str, *params: str, image_topic: str | None = None,
+                    env: Mapping[str, str] | None = None) -> NodeProcess:
+    """The calibrator console script as node ``name`` with config/calibrator.yaml, its
+    ``image`` on ``image_topic`` (default ``/<name>/image``), its calibration file in
+    ``log_dir``, and ``params`` (``key:=value``) on top."""
+    args = ["--params-file", str(PARAMS), "-r", f"__node:={name}",
+            "-r", f"image:={image_topic or f'/{name}/image'}",
+            "-p", f"output_file:={log_dir / (name + '.yaml')}"]
+    for p in params:
+        args += ["-p", p]
+    return NodeProcess("calibrator", args, log_dir, name=name, env=env)
+
+
 class Probe:
     """An rclpy node spun on a background thread, with its own context.
 

@@ -70,13 +70,5 @@ def send_until_counted(publisher: Any, msg: Any, count: Callable[[], int], targe
     Raises:
         AssertionError: naming ``what``, after ``timeout`` seconds.
     """
-    deadline = time.monotonic() + timeout
-    while True:
-        publisher.publish(msg)
-        resend = time.monotonic() + resend_after_s
-        while time.monotonic() < resend:
-            if count() >= target:
-                return
-            if time.monotonic() > deadline:
-                raise AssertionError(f"timed out after {timeout:g} s waiting for {what}")
-            time.sleep(0.05)
+    publish_until(publisher, msg, lambda: count() >= target, timeout, what,
+                  every_s=resend_after_s)

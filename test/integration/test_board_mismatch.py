@@ -19,12 +19,11 @@ from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
 
 from artcal_ros.core.board import Board
-from test.integration.ros_harness import ROOT, NodeProcess, Probe, diagnostics_values
+from test.integration.ros_harness import Probe, calibrator_node, diagnostics_values
 from test.integration.streaming import publish_until
 
 pytestmark = pytest.mark.integration
 
-PARAMS = ROOT / "config" / "calibrator.yaml"
 RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                       reliability=ReliabilityPolicy.RELIABLE)
 NAME = "cal_mismatch"
@@ -50,9 +49,7 @@ def mismatch(diagnostics: list[Any], named: str) -> str:
 
 
 def test_foreign_markers_are_named(tmp_path: Path, probe: Probe) -> None:
-    node = NodeProcess("calibrator", [
-        "--params-file", str(PARAMS), "-r", f"__node:={NAME}", "-r", f"image:=/{NAME}/image",
-        "-p", f"output_file:={tmp_path / 'out.yaml'}"], tmp_path, name=NAME)
+    node = calibrator_node(tmp_path, NAME)
     diagnostics = probe.collect(DiagnosticArray, "/diagnostics", RELIABLE)
     publisher = probe.node.create_publisher(Image, f"/{NAME}/image", RELIABLE)
     try:

@@ -28,7 +28,7 @@ from std_srvs.srv import Trigger
 
 from artcal_ros.core.calibrate.quality import projection_difference
 from artcal_ros.core.camera import CameraModel
-from test.integration.frames import CalibrationBag, calibration_bag, image_messages
+from test.integration.frames import CalibrationBag, image_messages
 from test.integration.ros_harness import (
     ROOT,
     NodeProcess,
@@ -53,11 +53,6 @@ MIN_VIEWS = 10  # config/calibrator.yaml
 # image (projection difference, RMS). 1 px is where a calibration starts to be visibly
 # wrong when rectifying; a solve that lost a parameter or mixed up views is off by tens.
 ACCURACY_RMS_PX = 1.0
-
-
-@pytest.fixture(scope="module")
-def bag(tmp_path_factory: pytest.TempPathFactory) -> CalibrationBag:
-    return calibration_bag(tmp_path_factory.mktemp("bag"))
 
 
 def calibrator(tmp_path: Path, name: str, image_topic: str, *params: str,

@@ -25,11 +25,10 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
 
-from test.integration.frames import CalibrationBag, calibration_bag, image_messages
+from test.integration.frames import CalibrationBag, image_messages
 from test.integration.ros_harness import (
-    ROOT,
-    NodeProcess,
     Probe,
+    calibrator_node,
     diagnostics_values,
     wait_until,
 )
@@ -37,7 +36,6 @@ from test.integration.streaming import Streamer
 
 pytestmark = pytest.mark.integration
 
-PARAMS = ROOT / "config" / "calibrator.yaml"
 NAME = "cal_cases"
 RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                       reliability=ReliabilityPolicy.RELIABLE)
@@ -47,11 +45,6 @@ QUICK_S = 10.0  # a reset or a parameter change never waits for the solve
 SOLVE_S = 120.0
 
 
-@pytest.fixture(scope="module")
-def bag(tmp_path_factory: pytest.TempPathFactory) -> CalibrationBag:
-    return calibration_bag(tmp_path_factory.mktemp("bag"))
-
-
 def answer_within(future: Any, bound: float, what: str) -> Any:
     wait_until(future.done, bound, f"{what} to be answered")
     return future.result()
@@ -59,10 +52,7 @@ def answer_within(future: Any, bound: float, what: str) -> Any:
 
 def test_each_concurrent_case_has_its_defined_answer(tmp_path: Path, probe: Probe,
                                                      bag: CalibrationBag) -> None:
-    node = NodeProcess("calibrator", [
-        "--params-file", str(PARAMS), "-r", f"__node:={NAME}", "-r", f"image:=/{NAME}/image",
-        "-p", f"output_file:={tmp_path / 'out.yaml'}", "-p", f"min_views:={MIN_VIEWS}",
-    ], tmp_path, name=NAME)
+    node = calibrator_node(tmp_path, NAME, f"min_views:={MIN_VIEWS}")
     diagnostics = probe.collect(DiagnosticArray, "/diagnostics", RELIABLE)
     frames = image_messages(bag)
     frames = [frames[i] for i in np.linspace(0, len(frames) - 1, 12).round().astype(int)]

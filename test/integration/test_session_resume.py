@@ -22,11 +22,11 @@ from std_srvs.srv import Trigger
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate.session_file import FILE_NAME, SessionFileError, read_session
-from test.integration.frames import CalibrationBag, calibration_bag, image_messages
+from test.integration.frames import CalibrationBag, image_messages
 from test.integration.ros_harness import (
-    ROOT,
     NodeProcess,
     Probe,
+    calibrator_node,
     diagnostics_values,
     wait_until,
 )
@@ -34,7 +34,6 @@ from test.integration.streaming import Streamer
 
 pytestmark = pytest.mark.integration
 
-PARAMS = ROOT / "config" / "calibrator.yaml"
 RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                       reliability=ReliabilityPolicy.RELIABLE)
 CAMERA = "resumecam"
@@ -42,19 +41,9 @@ SAVED_VIEWS = 5  # wait for this many in the file before the kill
 MIN_VIEWS = 4
 
 
-@pytest.fixture(scope="module")
-def bag(tmp_path_factory: pytest.TempPathFactory) -> CalibrationBag:
-    return calibration_bag(tmp_path_factory.mktemp("bag"))
-
-
 def start(tmp_path: Path, name: str, *params: str) -> NodeProcess:
-    args = ["--params-file", str(PARAMS), "-r", f"__node:={name}", "-r",
-            f"image:=/{name}/image", "-p", f"camera_name:={CAMERA}",
-            "-p", f"min_views:={MIN_VIEWS}", "-p", f"output_file:={tmp_path / 'out.yaml'}"]
-    for p in params:
-        args += ["-p", p]
-    env = {**os.environ, "HOME": str(tmp_path / "home")}
-    return NodeProcess("calibrator", args, tmp_path, name=name, env=env)
+    return calibrator_node(tmp_path, name, f"camera_name:={CAMERA}", f"min_views:={MIN_VIEWS}",
+                           *params, env={**os.environ, "HOME": str(tmp_path / "home")})
 
 
 def saved_views(path: Path) -> int:

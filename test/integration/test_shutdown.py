@@ -24,11 +24,11 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
 
-from test.integration.frames import CalibrationBag, calibration_bag, image_messages
+from test.integration.frames import CalibrationBag, image_messages
 from test.integration.ros_harness import (
-    ROOT,
     NodeProcess,
     Probe,
+    calibrator_node,
     diagnostics_values,
     wait_until,
 )
@@ -36,7 +36,6 @@ from test.integration.streaming import Streamer
 
 pytestmark = pytest.mark.integration
 
-PARAMS = ROOT / "config" / "calibrator.yaml"
 RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
                       reliability=ReliabilityPolicy.RELIABLE)
 # What a clean stop must never print.
@@ -52,11 +51,6 @@ PATTERNS: dict[str, list[tuple[float, int]]] = {
     "sigint-then-sigterm": [(0.0, INT), (0.05, TERM)],
 }
 EXIT_BOUND_S = 20.0  # the node must be gone by then (it takes ~1-3 s here)
-
-
-@pytest.fixture(scope="module")
-def bag(tmp_path_factory: pytest.TempPathFactory) -> CalibrationBag:
-    return calibration_bag(tmp_path_factory.mktemp("bag"))
 
 
 @pytest.fixture(scope="module")
@@ -80,14 +74,6 @@ def assert_quiet_exit(node: NodeProcess) -> None:
         assert bad not in text, f"{bad!r} in the output:\n{text[-4000:]}"
 
 
-def start_calibrator(tmp_path: Path, name: str, topic: str, *params: str) -> NodeProcess:
-    args = ["--params-file", str(PARAMS), "-r", f"__node:={name}", "-r", f"image:={topic}",
-            "-p", f"output_file:={tmp_path / (name + '.yaml')}"]
-    for p in params:
-        args += ["-p", p]
-    return NodeProcess("calibrator", args, tmp_path, name=name)
-
-
 def diag(diagnostics: list[Any], name: str, key: str) -> int:
     return int(diagnostics_values(diagnostics, name).get(key, 0))
 
@@ -97,7 +83,7 @@ def test_calibrator_stops_quietly_while_receiving_images(
         tmp_path: Path, probe: Probe, frames: list[Image], pattern: str) -> None:
     name = f"cal_sig_img_{pattern.replace('-', '_')}"
     topic = f"/{name}/in"
-    node = start_calibrator(tmp_path, name, topic)
+    node = calibrator_node(tmp_path, name, image_topic=topic)
     diagnostics = probe.collect(DiagnosticArray, "/diagnostics", RELIABLE)
     overlay = probe.collect(Image, f"/{name}/overlay", RELIABLE)  # so overlays are made
     publisher = probe.node.create_publisher(Image, topic, RELIABLE)
@@ -119,7 +105,7 @@ def test_calibrator_stops_quietly_while_solving(
         tmp_path: Path, probe: Probe, frames: list[Image], pattern: str) -> None:
     name = f"cal_sig_solve_{pattern.replace('-', '_')}"
     topic = f"/{name}/in"
-    node = start_calibrator(tmp_path, name, topic, "min_views:=4")
+    node = calibrator_node(tmp_path, name, "min_views:=4", image_topic=topic)
     diagnostics = probe.collect(DiagnosticArray, "/diagnostics", RELIABLE)
     publisher = probe.node.create_publisher(Image, topic, RELIABLE)
     streamer = Streamer(publisher, frames, 0.1)
