@@ -28,8 +28,8 @@ from artcal_ros.synth.poses import marker_truth
 BOARD = Board()
 
 
-def views(n: int, seed: int = 3) -> list[Detections]:
-    cam = Camera.preset("webcam")
+def views(n: int, seed: int = 3, preset: str = "webcam") -> list[Detections]:
+    cam = Camera.preset(preset)
     rng = np.random.default_rng(seed)
     out = []
     for k, (rvec, tvec) in enumerate(random_poses(BOARD, cam, n, rng)):
@@ -163,3 +163,18 @@ def test_a_failed_save_warns_once_and_keeps_the_views(tmp_path: Path) -> None:
         c.add(v)
     assert not store.save_if_changed() and not store.save_if_changed()
     assert len(warnings) == 1 and str(blocker) in warnings[0] and len(c.views) == 2
+
+
+def test_another_image_size_after_a_resume_keeps_the_old_views(tmp_path: Path) -> None:
+    path = tmp_path / FILE_NAME
+    write_session(path, views(3), BOARD)  # 640 x 480
+    c = collector()
+    warnings: list[str] = []
+    store = SessionStore(path, BOARD, c, warn=warnings.append)
+    store.open(resume=True)
+    assert len(c.views) == 3
+    assert c.add(views(1, seed=5, preset="wide")[0])  # 1280 x 800: the collection restarts
+    assert store.save_if_changed()
+    assert len(warnings) == 1 and "1280x800" in warnings[0] and "640x480" in warnings[0]
+    assert len(read_session(path.with_name(PREVIOUS_NAME), BOARD).views) == 3
+    assert read_session(path, BOARD).image_size == (1280, 800)
