@@ -13,7 +13,9 @@ the context), and later signals change nothing.
     stop = StopSignals.install()          # before rclpy.init
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     ...
-    spin_until_stopped(executor, stop)    # returns on the first SIGINT or SIGTERM
+    spin = spin_until_stopped(executor, stop)   # returns on the first SIGINT or SIGTERM
+    node.stop()                           # the node's own threads: nothing publishes after
+    shut_down(node, executor, spin)       # executor, node, context
 """
 
 from __future__ import annotations
