@@ -101,14 +101,14 @@ class LiveDetection:
         collector: where views go.
         config: bounds, see :class:`LiveConfig`.
         on_measured: called on the background thread after each precise detection with
-            the detections and whether they added a view.
+            the image, the detections and whether they added a view.
         on_error: called on the background thread with an exception detection raised (the
             frame is skipped, its held view released).
     """
 
     def __init__(self, board: Board, detect: Callable[[np.ndarray], Detections],
                  collector: ViewCollector, config: LiveConfig | None = None, *,
-                 on_measured: Callable[[Detections, bool], None] | None = None,
+                 on_measured: Callable[[np.ndarray, Detections, bool], None] | None = None,
                  on_error: Callable[[BaseException], None] | None = None) -> None:
         self.config = config or LiveConfig()
         self.tracker = MarkerTracker(board)
@@ -203,7 +203,7 @@ class LiveDetection:
         else:
             kept = self.collector.add(dets)
         if self._on_measured is not None:
-            self._on_measured(dets, kept)
+            self._on_measured(job.image, dets, kept)
 
     # --- state ---------------------------------------------------------------------
     def counts(self) -> LiveCounts:

@@ -112,6 +112,10 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "Width the node's ~/overlay image is scaled down to at most, pixels (a 1080p bgr8 "
               "overlay is 6.2 MB a message, 1.6 MB at 960 px).",
               check=_positive),
+    ParamSpec("resume", False,
+              "true: continue the session saved under ~/.ros/artcal/<camera_name>/ (the "
+              "views collected before a stop, crash or kill); false: start empty (a saved "
+              "session is kept as session.previous.npz once new views are saved)."),
 )
 
 SPECS: dict[str, ParamSpec] = {s.name: s for s in PARAMETERS}

@@ -137,7 +137,7 @@ def test_only_precise_detections_become_views(sweep: list[RenderedView],
     measured: list[Detections] = []
     live = LiveDetection(BOARD, Detector(BOARD).detect, collector,
                          LiveConfig(refresh_s=0.0),
-                         on_measured=lambda dets, kept: measured.append(dets))
+                         on_measured=lambda image, dets, kept: measured.append(dets))
     try:
         run_stream(live, sweep[:9], 0.05)
         # the camera comes to rest: the fast tier soon shows the board's markers
