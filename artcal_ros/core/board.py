@@ -308,12 +308,14 @@ class Board:
         rc = self._marker_cells[k]
         return rc[:, 0], rc[:, 1]
 
+    def marker_cells(self, marker_ids: np.ndarray) -> np.ndarray:
+        """(N, 2) int64 (row, col) of markers: grid cells, or ChArUco squares."""
+        rows, cols = self._cells(marker_ids)
+        return np.stack([rows, cols], axis=1).reshape(-1, 2)
+
     def feature_cells(self, ids: np.ndarray) -> np.ndarray:
         """(K, 2) (row, col) of a view's correspondences: points, or markers on a grid."""
-        if self.has_points:
-            return self.point_cells(ids)
-        rows, cols = self._cells(ids)
-        return np.stack([rows, cols], axis=1).reshape(-1, 2)
+        return self.point_cells(ids) if self.has_points else self.marker_cells(ids)
 
     def object_corners(self, marker_ids: np.ndarray | None = None) -> np.ndarray:
         """(N, 4, 3) float64, metres: each marker's corners TL, TR, BR, BL in the board frame."""
