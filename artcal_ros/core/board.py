@@ -409,6 +409,7 @@ class Board:
         chess = self.chess.lines_m() if self.chess is not None else None
         for axis, count in enumerate((self.cols, self.rows)):
             parts: list[np.ndarray] = []
+            starts: np.ndarray
             if chess is not None:
                 parts.append(chess[axis])
                 starts = chess[axis][:-1] + self.quiet_zone_m

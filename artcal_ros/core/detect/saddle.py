@@ -212,7 +212,7 @@ def _lm(theta: np.ndarray, img: np.ndarray, dx: np.ndarray, dy: np.ndarray, wgt:
         M = _normal(wgt, L) + 1e-9 * np.eye(4)
         rhs = _gradient(wgt, L, img)
         theta[:, 5:] = np.linalg.solve(M, rhs[..., None])[..., 0]
-    lam = np.full(K, 1e-3)
+    lam: np.ndarray = np.full(K, 1e-3)
     val, J = _model(theta, dx, dy, True)
     cost = (wgt * (img - val) ** 2).sum(axis=1)
     eye = np.eye(9)
@@ -237,5 +237,5 @@ def _lm(theta: np.ndarray, img: np.ndarray, dx: np.ndarray, dy: np.ndarray, wgt:
         assert tJ is not None
         J[better] = tJ[better]
         cost = np.where(better, tcost, cost)
-        lam = np.where(better, lam * 0.3, lam * 10.0)
+        lam = np.asarray(np.where(better, lam * 0.3, lam * 10.0))
     return theta
