@@ -5,11 +5,13 @@ Near an inner corner the print is two straight edges crossing: a pattern
 lines through the corner ``c``. The lens blurs it with a point-spread function and each
 pixel integrates it over its area; in linear light a pixel at ``p`` reads
 
-    I(p) = a + b * E(u1 / s) * E(u2 / s) + g . (p - c),     E(t) = erf(t / sqrt(2)),
+    I(p) = (a + b * E(u1 / s) * E(u2 / s)) * (1 + g . (p - c)),    E(t) = erf(t / sqrt(2)),
 
 with ``u_k = n_k . (p - c)`` for the unit normals ``n_k`` of the edges (angles ``alpha_k``),
-``s`` the blur (Gaussian PSF and pixel box together), ``a``, ``b`` the paper level and
-contrast, ``g`` the light's gradient across the window. For perpendicular edges this is
+``s`` the blur (Gaussian PSF and pixel box together), ``a``, ``b`` the mean level and
+contrast of the print, ``g`` the light's relative gradient across the window (light
+multiplies the print's reflectance: an additive gradient would tilt the dark and the white
+quadrants alike and pull the centre towards the darker side). For perpendicular edges this is
 the exact blurred pattern; for oblique ones (perspective) the product is an approximation
 whose error is point-symmetric about ``c``, so it does not move the fitted centre.
 
@@ -72,24 +74,26 @@ def _model(theta: np.ndarray, dx: np.ndarray, dy: np.ndarray, want_jac: bool
     u2 = n2x * ex + n2y * ey
     E1, E2 = erf(u1 / (_SQRT2 * s)), erf(u2 / (_SQRT2 * s))
     S = E1 * E2
-    val = a + b * S + gx * ex + gy * ey
+    light = 1.0 + gx * ex + gy * ey
+    printed = a + b * S
+    val = printed * light
     if not want_jac:
         return val, None
     g1 = _GAUSS / s * np.exp(-0.5 * (u1 / s) ** 2)
     g2 = _GAUSS / s * np.exp(-0.5 * (u2 / s) ** 2)
     dS_du1, dS_du2 = g1 * E2, E1 * g2
     J = np.empty((val.shape[0], 9, val.shape[1]))
-    bg1, bg2 = b * dS_du1, b * dS_du2
-    J[:, 0] = -(bg1 * n1x + bg2 * n2x) - gx
-    J[:, 1] = -(bg1 * n1y + bg2 * n2y) - gy
+    bg1, bg2 = b * light * dS_du1, b * light * dS_du2
+    J[:, 0] = -(bg1 * n1x + bg2 * n2x) - printed * gx
+    J[:, 1] = -(bg1 * n1y + bg2 * n2y) - printed * gy
     # du_k / dalpha_k = -(t_k . e), t_k = (cos, sin) the edge direction
     J[:, 2] = -bg1 * (np.cos(a1) * ex + np.sin(a1) * ey)
     J[:, 3] = -bg2 * (np.cos(a2) * ex + np.sin(a2) * ey)
     J[:, 4] = -(bg1 * u1 + bg2 * u2) / s
-    J[:, 5] = 1.0
-    J[:, 6] = S
-    J[:, 7] = ex
-    J[:, 8] = ey
+    J[:, 5] = light
+    J[:, 6] = S * light
+    J[:, 7] = printed * ex
+    J[:, 8] = printed * ey
     return val, J
 
 
@@ -205,13 +209,13 @@ def _lm(theta: np.ndarray, img: np.ndarray, dx: np.ndarray, dy: np.ndarray, wgt:
     K = len(theta)
     theta = theta.copy()
     if linear_start:
-        # a, b, gx, gy by linear least squares for the starting geometry
+        # a and b by linear least squares for the starting geometry
         val, J = _model(theta, dx, dy, True)
         assert J is not None
-        L = J[:, 5:]
-        M = _normal(wgt, L) + 1e-9 * np.eye(4)
+        L = J[:, 5:7]            # the light is flat at the start: I = a + b S
+        M = _normal(wgt, L) + 1e-9 * np.eye(2)
         rhs = _gradient(wgt, L, img)
-        theta[:, 5:] = np.linalg.solve(M, rhs[..., None])[..., 0]
+        theta[:, 5:7] = np.linalg.solve(M, rhs[..., None])[..., 0]
     lam: np.ndarray = np.full(K, 1e-3)
     val, J = _model(theta, dx, dy, True)
     cost = (wgt * (img - val) ** 2).sum(axis=1)
