@@ -137,6 +137,10 @@ class Detector:
                 decode_rejected=self.config.decode_rejected,
                 min_side_px=self.config.min_side_px)
         self._lens_pool = LensPool()
+        # ChArUco markers sit sqrt(2) squares apart at the closest (see neighbour_support)
+        self._grow_to: float | None = None
+        if board.board_type == "charuco":
+            self._grow_to = 0.45 * np.sqrt(2.0) * board.square_length / board.marker_length
         # quiet zone around a marker's border, in modules (mixed boards: half the gap)
         self._quiet_modules = board.quiet_zone_m / board.module_length if board.bits else 0.0
 
@@ -225,7 +229,8 @@ class Detector:
         corners = np.asarray(corners, dtype=np.float64)
 
         errors = code_errors(lin, corners, dark, ids, self.board)
-        support = neighbour_support(corners, ids, self.board, self.config.neighbour_tolerance)
+        support = neighbour_support(corners, ids, self.board, self.config.neighbour_tolerance,
+                                    self._grow_to)
         ok = (errors <= self.config.max_bit_errors) & (support > 0)
         if self.config.max_bit_errors_isolated is not None:
             ok |= (support == 0) & (errors <= self.config.max_bit_errors_isolated)

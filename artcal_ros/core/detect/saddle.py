@@ -32,6 +32,9 @@ _SQRT2 = float(np.sqrt(2.0))
 _GAUSS = float(np.sqrt(2.0 / np.pi))
 MAX_RADIUS_PX = 12      # half-size of the pixel box around a corner
 GUARD_PX = 2.0          # distance kept from other printed edges, pixels (beyond the blur)
+# A pixel integrates over its area: a perfect step already reads as a blur of 1 / sqrt(12)
+# px. Sharpened photographs (JPEG cameras) can fit steeper; the floor keeps the model smooth.
+MIN_BLUR_PX = 0.29
 
 
 def erf(x: np.ndarray) -> np.ndarray:
@@ -187,7 +190,7 @@ def fit_saddles(lin: np.ndarray, guess_px: np.ndarray, axes_px: np.ndarray,
     moved = np.linalg.norm(points - guess, axis=1)
     angle = np.abs(np.sin(theta[:, 2] - theta[:, 3]))
     ok = (np.all(np.isfinite(theta), axis=1) & (moved < 0.3 * scale) & (s < 0.25 * scale)
-          & (s > 0.05) & (contrast > 0.05) & (rms < 0.3 * np.abs(b))
+          & (contrast > 0.05) & (rms < 0.3 * np.abs(b))
           & (dark_down_right == black_diagonal) & (angle > 0.2) & (n >= 20)
           & (sigma < 0.1 * scale))
     return SaddleFit(points, sigma, ok, s, contrast)
@@ -232,7 +235,7 @@ def _lm(theta: np.ndarray, img: np.ndarray, dx: np.ndarray, dy: np.ndarray, wgt:
         except np.linalg.LinAlgError:
             break
         trial = theta + step
-        trial[:, 4] = np.abs(trial[:, 4]) + 1e-3
+        trial[:, 4] = np.maximum(np.abs(trial[:, 4]), MIN_BLUR_PX)
         tval, tJ = _model(trial, dx, dy, True)
         tcost = (wgt * (img - tval) ** 2).sum(axis=1)
         better = np.isfinite(tcost) & (tcost < cost)
