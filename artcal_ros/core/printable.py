@@ -151,11 +151,12 @@ def layout_page(board: Board, *, paper: str | None = None) -> PageLayout:
             raise ParameterError(f"--paper {paper!r}: use one of fit, {', '.join(PAPERS)}")
         pw, ph = PAPERS[paper]
         fits = [(w, h) for w, h in ((pw, ph), (ph, pw)) if page_w <= w and page_h <= h]
+        length = "marker_length" if board.chess is None else "square_length"
         if not fits:
             raise ParameterError(
                 f"--paper {paper}: the board needs {page_w:.0f} x {page_h:.0f} mm with its "
                 f"border and footer but {paper} is {pw:g} x {ph:g} mm; use a larger paper, "
-                "--paper fit, or a smaller board.marker_length")
+                f"--paper fit, or a smaller board.{length}")
         page_w, page_h = fits[0]
     left = 0.5 * (page_w - content_w)
     top = 0.5 * (page_h - content_h)
