@@ -52,9 +52,8 @@ def _board_type(value: Any) -> str | None:
     if value in BUILT_TYPES:
         return None
     if value in PLANNED_TYPES:
-        return (f"is not built yet (planned: {', '.join(PLANNED_TYPES)}); "
-                f"use one of the built types: {', '.join(BUILT_TYPES)}")
-    return f"is not a board type; use one of {', '.join(BUILT_TYPES)}"
+        return f"is not built yet; {', '.join(PLANNED_TYPES)} are planned"
+    return "is not a board type"
 
 
 def _dictionary(value: Any) -> str | None:
@@ -74,7 +73,7 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("board.type", "marker_grid",
               "Board layout: marker_grid (self-identifying markers), chessboard "
               "(camera_calibration's), charuco (OpenCV's CharucoBoard).",
-              check=_board_type),
+              check=_board_type, allowed=", ".join(BUILT_TYPES)),
     ParamSpec("board.dictionary", "DICT_6X6_1000",
               "OpenCV predefined ArUco dictionary name of the markers.", check=_dictionary),
     ParamSpec("board.cols", 19, "Per row: markers (marker_grid), inner corners (chessboard, "
