@@ -140,6 +140,21 @@ def test_chessboard_realistic_renders_beat_half_of_cornersubpix() -> None:
     assert rms <= 0.5 * float(np.sqrt(np.mean(np.concatenate(opencv) ** 2)))
 
 
+def test_chessboard_with_squares_of_six_pixels_is_found_and_measured() -> None:
+    board = Board(board_type="chessboard", cols=9, rows=6, square_length=0.01)
+    cam = Camera.preset("webcam")
+    rvec = np.array([0.45, 0.2, 0.3])
+    R = cv2.Rodrigues(rvec)[0]
+    tvec = np.array([0.0, 0.0, 0.95]) - R @ np.array([0.04, 0.025, 0.0])
+    view = render_view(board, cam, rvec, tvec, photometry=Photometry.clean(),
+                       rng=np.random.default_rng(12))
+    spacing = np.linalg.norm(np.diff(view.points_px.reshape(6, 9, 2), axis=1), axis=2)
+    assert view.points_inside.all() and np.median(spacing) < 6.5
+    det = Detector(board).detect(view.image)
+    assert len(det.point_ids) >= 50
+    assert _errors(view, det.point_ids, det.points_px).max() < 0.15
+
+
 def test_partial_chessboards_give_no_points() -> None:
     detector = Detector(CHESS)
     partial = [v for v in _views(CHESS, 3, 1.0, 5) if not v.points_inside.all()]

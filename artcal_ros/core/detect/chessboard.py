@@ -22,18 +22,21 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect.saddle import fit_saddles
 
-_SB_FLAGS = cv2.CALIB_CB_NORMALIZE_IMAGE
-_CLASSIC_FLAGS = (cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
-                  | cv2.CALIB_CB_FAST_CHECK)
+_CLASSIC_FLAGS = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
 
 
 def find_grid(gray8: np.ndarray, cols: int, rows: int) -> np.ndarray | None:
     """(rows, cols, 2) float64 OpenCV's unrefined grid of inner corners, or None."""
-    # the classic finder is fast (a few ms); the sector-based one finds more boards (under
-    # strong distortion, blur, small squares) at ~50x the time
-    found, corners = cv2.findChessboardCorners(gray8, (cols, rows), flags=_CLASSIC_FLAGS)
+    # The classic finder with its quick check takes a few ms; the sector-based one finds
+    # more boards (strong distortion, blur) at ~50x the time; the classic one without the
+    # quick check (which refuses squares below ~7 px) finds some small-square boards the
+    # sector-based one misses.
+    found, corners = cv2.findChessboardCorners(
+        gray8, (cols, rows), flags=_CLASSIC_FLAGS | cv2.CALIB_CB_FAST_CHECK)
     if not found:
-        found, corners = cv2.findChessboardCornersSB(gray8, (cols, rows), flags=_SB_FLAGS)
+        found, corners = cv2.findChessboardCornersSB(gray8, (cols, rows))
+    if not found:
+        found, corners = cv2.findChessboardCorners(gray8, (cols, rows), flags=_CLASSIC_FLAGS)
     if not found or corners is None or len(corners) != cols * rows:
         return None
     return np.asarray(corners, dtype=np.float64).reshape(rows, cols, 2)

@@ -35,6 +35,8 @@ GUARD_PX = 2.0          # distance kept from other printed edges, pixels (beyond
 # A pixel integrates over its area: a perfect step already reads as a blur of 1 / sqrt(12)
 # px. Sharpened photographs (JPEG cameras) can fit steeper; the floor keeps the model smooth.
 MIN_BLUR_PX = 0.29
+MIN_HALF_PX = 2.5       # smallest half-size of a window, pixels
+MIN_PIXELS = 15         # fewest pixels a fit of the nine parameters is made from
 
 
 def erf(x: np.ndarray) -> np.ndarray:
@@ -109,8 +111,10 @@ def _window(A: np.ndarray, centre: np.ndarray, dx: np.ndarray, dy: np.ndarray,
     v = Ainv[:, 1, 0:1] * ex + Ainv[:, 1, 1:2] * ey
     # a pixel's size in squares along each board axis, for the guard distances
     scale = np.sqrt(np.abs(np.linalg.det(A)))[:, None]              # pixels per square
-    guard = GUARD_PX / scale
-    inside = np.maximum(np.abs(u), np.abs(v)) <= window - guard
+    guard = np.minimum(GUARD_PX / scale, 0.2)      # small squares: a fifth of one at most
+    # at least MIN_HALF_PX pixels each way (tiny squares), never past 0.8 squares
+    half = np.minimum(np.maximum(window - guard, MIN_HALF_PX / scale), 0.8)
+    inside = np.maximum(np.abs(u), np.abs(v)) <= half
     if band is not None:
         # quadrants up-left / down-right are black where black_diagonal
         same_sign = (u * v) > 0
@@ -191,7 +195,7 @@ def fit_saddles(lin: np.ndarray, guess_px: np.ndarray, axes_px: np.ndarray,
     angle = np.abs(np.sin(theta[:, 2] - theta[:, 3]))
     ok = (np.all(np.isfinite(theta), axis=1) & (moved < 0.3 * scale) & (s < 0.25 * scale)
           & (contrast > 0.05) & (rms < 0.3 * np.abs(b))
-          & (dark_down_right == black_diagonal) & (angle > 0.2) & (n >= 20)
+          & (dark_down_right == black_diagonal) & (angle > 0.2) & (n >= MIN_PIXELS)
           & (sigma < 0.1 * scale))
     return SaddleFit(points, sigma, ok, s, contrast)
 
