@@ -154,14 +154,15 @@ def solve_points(dets: Detections, board: Board, points: str) -> tuple[np.ndarra
         dets: the view's markers.
         board: the board (ids not on it are ignored).
         points: ``centers`` (one point per marker, needing its corners too) or ``corners``;
-            a board with points (chessboard, charuco) gives its points.
+            a board with points (chessboard, charuco) gives its points (a ChArUco view
+            tracked without its points: its markers).
 
     Returns:
         (object_points (N, 3) metres, image_points (N, 2) pixels).
     """
     if points not in POINTS_MODES:
         raise ValueError(f"points mode {points!r} is not one of {', '.join(POINTS_MODES)}")
-    if board.has_points:
+    if board.has_points and (len(dets.point_ids) or not board.n_markers):
         pids, pts = point_correspondences(dets, board)
         return board.object_points(pids), pts
     keep = np.array([board.has_id(int(i)) for i in dets.ids], dtype=bool).reshape(-1)
@@ -332,13 +333,16 @@ class ViewCollector:
         return True
 
     def _features(self, dets: Detections) -> tuple[np.ndarray, np.ndarray]:
-        """(ids, image positions) of what identifies a view: points or marker centres."""
-        if self.board.has_points:
-            return dets.point_ids, dets.points_px
-        return dets.ids, dets.centers_px
+        """(ids, image positions) of what identifies a view: its marker centres (marker
+        grids, and ChArUco boards, whose tracked views have markers only), else points."""
+        if self.board.n_markers:
+            return dets.ids, dets.centers_px
+        return dets.point_ids, dets.points_px
 
-    def _too_few(self, dets: Detections) -> bool:
-        if self.board.has_points:
+    def _too_few(self, dets: Detections, *, tracked: bool = False) -> bool:
+        # a kept view of a point board needs its points; a tracked one (reserve) has the
+        # markers only, which stand for the points until the precise detection comes
+        if self.board.has_points and not (tracked and self.board.n_markers):
             return len(dets.point_ids) < max(self.config.min_markers, 8)
         return len(dets) < self.config.min_markers
 
@@ -377,7 +381,7 @@ class ViewCollector:
         novelty only: not in :meth:`snapshot`, the readiness or the coverage.
         """
         cfg = self.config
-        if self._too_few(dets):
+        if self._too_few(dets, tracked=True):
             return None
         size = (int(dets.image_size[0]), int(dets.image_size[1]))
         geometry = view_geometry(*solve_points(dets, self.board, cfg.points), size)
