@@ -161,6 +161,15 @@ class Board:
                 "board.square_length": self.square_length,
                 "board.legacy_pattern": self.legacy_pattern}
 
+    @property
+    def size_parameters(self) -> str:
+        """The parameters that set the board's geometry, for messages."""
+        if self.board_type == "chessboard":
+            return "board.cols, board.rows, board.square_length"
+        if self.board_type == "charuco":
+            return "board.cols, board.rows, board.square_length, board.marker_length"
+        return "board.cols, board.rows, board.marker_length, board.marker_separation"
+
     # --- layout -------------------------------------------------------------------
     @cached_property
     def chess(self) -> ChessLayout | None:
