@@ -196,3 +196,23 @@ def test_charuco_in_clutter_names_no_wrong_corner() -> None:
     for view in _views(CHARUCO, 2, 1.0, 8, realistic=True):
         det = detector.detect(view.image)
         assert np.all(_errors(view, det.point_ids, det.points_px) < 0.3)
+
+
+def test_saddle_fit_refuses_windows_cut_by_the_image_edge() -> None:
+    from artcal_ros.core.detect.saddle import fit_saddles
+
+    # a pixel-integrated X-corner at (x0, 20.25) seen through a lens blur of 0.8 px, edges
+    # along the image axes (positions on the 1/8 px grid the supersampling draws exactly)
+    def render(x0: float) -> np.ndarray:
+        sub = 8
+        ys, xs = np.mgrid[0:40 * sub, 0:60 * sub]
+        u, v = (xs + 0.5) / sub - 0.5 - x0, (ys + 0.5) / sub - 0.5 - 20.25
+        img = cv2.GaussianBlur(np.where(u * v > 0, 0.05, 0.8), (0, 0), 0.8 * sub)
+        return img.reshape(40, sub, 60, sub).mean(axis=(1, 3))
+
+    axes = np.array([[[14.0, 0.0], [0.0, 14.0]]])
+    inside = fit_saddles(render(30.375), np.array([[30.0, 20.0]]), axes, np.array([True]))
+    assert inside.ok[0]
+    np.testing.assert_allclose(inside.points_px[0], [30.375, 20.25], atol=0.002)
+    edge = fit_saddles(render(3.375), np.array([[3.0, 20.0]]), axes, np.array([True]))
+    assert not edge.ok[0]

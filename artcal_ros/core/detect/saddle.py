@@ -170,13 +170,17 @@ def fit_saddles(lin: np.ndarray, guess_px: np.ndarray, axes_px: np.ndarray,
     theta[:, 3] = np.arctan2(A[:, 1, 1], A[:, 0, 1])
     theta[:, 4] = 1.0
     for _pass in range(2):
-        wgt = _window(A, theta[:, :2], dx, dy, window, band, black_diagonal) * valid
+        window_mask = _window(A, theta[:, :2], dx, dy, window, band, black_diagonal)
+        wgt = window_mask * valid
         theta = _lm(theta, img, dx, dy, wgt, iterations if _pass == 0 else iterations // 2,
                     linear_start=_pass == 0)
     val, J = _model(theta, dx, dy, True)
     assert J is not None
     res = (img - val) * wgt
     n = wgt.sum(axis=1)
+    # a window cut by the image edge sees part of an X only: not measured (the pixel box
+    # may cut it, symmetrically about the start, where squares are large)
+    whole = (window_mask * ~valid).sum(axis=1) == 0
     dof = np.maximum(n - 9, 1)
     rms = np.sqrt((res ** 2).sum(axis=1) / dof)
     JtJ = _normal(wgt, J) + 1e-12 * np.eye(9)
@@ -196,7 +200,7 @@ def fit_saddles(lin: np.ndarray, guess_px: np.ndarray, axes_px: np.ndarray,
     ok = (np.all(np.isfinite(theta), axis=1) & (moved < 0.3 * scale) & (s < 0.25 * scale)
           & (contrast > 0.05) & (rms < 0.3 * np.abs(b))
           & (dark_down_right == black_diagonal) & (angle > 0.2) & (n >= MIN_PIXELS)
-          & (sigma < 0.1 * scale))
+          & (sigma < 0.1 * scale) & whole)
     return SaddleFit(points, sigma, ok, s, contrast)
 
 
