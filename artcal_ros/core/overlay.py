@@ -40,7 +40,7 @@ def render_overlay(image: np.ndarray, dets: Detections | None, counts: np.ndarra
 
     Args:
         image: (H, W) uint8/uint16 or (H, W, 3) uint8 BGR, the camera frame.
-        dets: markers found in it (None: detection not run or failed).
+        dets: markers and points found in it (None: detection not run or failed).
         counts: (rows, cols) coverage counts over the image (see ViewCollector.counts).
         readiness: the collection's state, printed as text.
         kept: whether this frame was kept as a calibration view (drawn as a green frame).
@@ -88,10 +88,17 @@ def render_overlay(image: np.ndarray, dets: Detections | None, counts: np.ndarra
                 cv2.putText(out, str(marker_id), (centers[k][0] - 8, centers[k][1] + 4),
                             cv2.FONT_HERSHEY_SIMPLEX, 0.8 * scale, _YELLOW, thick,
                             cv2.LINE_8)
+    if dets is not None and len(dets.point_ids):
+        pts = np.round((dets.points_px + 0.5) * zoom - 0.5).astype(np.int32)
+        for p in pts:
+            cv2.circle(out, (int(p[0]), int(p[1])), thick + 2, _RED, thick, cv2.LINE_AA)
     if kept:
         cv2.rectangle(out, (0, 0), (w - 1, h - 1), _GREEN, 3 * thick)
     n = 0 if dets is None else len(dets)
-    lines = [f"markers {n}  views {readiness.views}/{readiness.views_needed}  "
+    found = f"markers {n}"
+    if dets is not None and len(dets.point_ids):
+        found = f"points {len(dets.point_ids)}" + (f"  markers {n}" if n else "")
+    lines = [f"{found}  views {readiness.views}/{readiness.views_needed}  "
              f"coverage {readiness.coverage:.0%}"]
     lines += ["ready to calibrate"] if readiness.ready else \
         [f"missing: {item}" for item in readiness.missing]

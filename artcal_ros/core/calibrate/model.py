@@ -37,7 +37,8 @@ class ViewPoints:
         source: where the image came from (for reports).
         object_points: (M, 3) float64, metres, board frame (z = 0).
         image_points: (M, 2) float64, pixels.
-        marker_ids: (M,) int64, the marker each point belongs to.
+        marker_ids: (M,) int64, the marker each point belongs to (on a chessboard or
+            ChArUco board: the point's own id).
         sharpness: focus measure of the image (NaN if unknown).
         marker_corners_px: (M, 4, 2) float64 pixels, for marker centres: the corners they
             were measured from (so the centres can be corrected for distortion); else None.

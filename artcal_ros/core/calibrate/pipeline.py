@@ -100,8 +100,8 @@ def _reject(views: list[ViewPoints], res: list[np.ndarray], board: Board, size: 
     if med > max_rms_px(size):
         raise CalibrationError(
             f"the {len(views)} views cannot be fitted together (median view RMS {med:.1f} px): "
-            "the board parameters (board.cols, board.rows, board.marker_length, "
-            "board.marker_separation) or the camera_model are wrong, or the solve started "
+            f"the board parameters ({board.size_parameters}) or the camera_model are wrong, "
+            "or the solve started "
             "badly; add views tilted 20-45 degrees in different directions")
     bad_view = (frac > VIEW_OUTLIER_FRACTION) | (
         view_rms > max(VIEW_OUTLIER_FACTOR * med, OUTLIER_FLOOR_PX))
@@ -281,7 +281,7 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         sol, _ = solve(views, size, model, options=options, initial=sol, weighted=weighted)
     res = residuals(views, sol)
     rms, std, worst = _stats(res)
-    _sanity(sol, views, size, rms)
+    _sanity(sol, views, size, rms, board)
 
     say("estimating uncertainty")
     cov, _sigma = intrinsic_covariance(views, sol, res, weighted=weighted)
@@ -329,7 +329,7 @@ def _full_dist(sol: Solution) -> np.ndarray:
 
 
 def _sanity(sol: Solution, views: Sequence[ViewPoints], size: tuple[int, int],
-            rms: float) -> None:
+            rms: float, board: Board) -> None:
     """Raise CalibrationError for a camera that cannot be right."""
     w, h = size
     K = sol.camera_matrix
@@ -337,8 +337,8 @@ def _sanity(sol: Solution, views: Sequence[ViewPoints], size: tuple[int, int],
     if rms > limit:
         raise CalibrationError(
             f"the best {sol.model} fit leaves {rms:.2f} px RMS reprojection error (> "
-            f"{limit:.1f} px): check the board parameters (board.cols, board.rows, "
-            "board.marker_length, board.marker_separation) and the camera_model")
+            f"{limit:.1f} px): check the board parameters ({board.size_parameters}) and the "
+            "camera_model")
     if not (0 <= K[0, 2] <= w and 0 <= K[1, 2] <= h):
         raise CalibrationError(
             f"the solve put the principal point at ({K[0, 2]:.0f}, {K[1, 2]:.0f}), outside the "

@@ -231,8 +231,8 @@ def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str
     except cv2.error as e:
         raise CalibrationError(
             f"the {model} solver failed ({e.err.strip() if hasattr(e, 'err') else e}); "
-            "check that the board parameters (board.cols, board.rows, board.marker_length, "
-            "board.marker_separation) match the printed board, and add views that tilt the "
+            "check that the board parameters (board.cols, board.rows and its lengths) match "
+            "the printed board, and add views that tilt the "
             "board in different directions") from None
     K = np.asarray(K, dtype=np.float64)
     if weighted and model != "equidistant" and np.all(np.isfinite(K)):

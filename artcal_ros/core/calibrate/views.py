@@ -20,12 +20,13 @@ from artcal_ros.core.camera import CameraModel
 
 # The view geometry (guessed camera, pose, coverage grid and threshold) is defined once, in
 # core.coverage, for the node's readiness and for the selection and checks here alike.
-from artcal_ros.core.coverage import COVERAGE_GRID, POINTS_MODES
+from artcal_ros.core.coverage import COVERAGE_GRID, POINTS_MODES, point_correspondences
 from artcal_ros.core.coverage import view_geometry as one_view_geometry
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import CalibrationError
 
 MIN_MARKERS_PER_VIEW = 6  # enough for a homography plus redundancy to see distortion
+MIN_POINTS_PER_VIEW = 8   # the same for single points (chessboard, charuco corners)
 MIN_VIEWS = 3  # focal lengths and principal point need three differently tilted views
 MIN_TILT_SPREAD_DEG = 5.0  # below this, every view shows the board at the same angle
 
@@ -36,11 +37,19 @@ def view_points(det: Detections, board: Board, points: str, index: int) -> ViewP
     Args:
         det: the markers found in the image.
         board: the board they belong to (ids not on it are ignored).
-        points: ``centers`` (one point per marker) or ``corners`` (four).
+        points: ``centers`` (one point per marker) or ``corners`` (four); boards with
+            points (chessboard, charuco) always give their points, ``marker_ids`` then
+            holding each point's id.
         index: position of the view in the caller's list.
     """
     if points not in POINTS_MODES:
         raise CalibrationError(f"points mode {points!r} is not one of {', '.join(POINTS_MODES)}")
+    if board.has_points:
+        # chessboard and charuco: the saddle points, whatever ``points`` says
+        pids, pts = point_correspondences(det, board)
+        ok = np.isin(det.point_ids, pids)
+        return ViewPoints(index, det.source, board.object_points(pids), pts, pids,
+                          det.sharpness, sigma_px=det.point_sigma_px[ok])
     keep = np.array([board.has_id(int(i)) for i in det.ids], dtype=bool)
     if points == "centers":
         img = det.centers_px[keep]
@@ -103,7 +112,7 @@ def layout_outliers(view: ViewPoints, board: Board) -> np.ndarray:
     pos = np.zeros((k, 2))
     np.add.at(pos, inverse, view.image_points)
     pos /= np.bincount(inverse, minlength=k)[:, None]
-    rc = np.array([board.cell_of(int(i)) for i in ids], dtype=np.float64).reshape(-1, 2)
+    rc = board.feature_cells(ids).astype(np.float64).reshape(-1, 2)
     # One affine fit per marker, all at once: normal equations summed over neighbours.
     near = np.max(np.abs(rc[:, None, :] - rc[None, :, :]), axis=2) <= 2
     np.fill_diagonal(near, False)
@@ -123,11 +132,13 @@ def layout_outliers(view: ViewPoints, board: Board) -> np.ndarray:
 def view_problem(view: ViewPoints, board: Board) -> str | None:
     """Why this view cannot take part in a solve, or None if it can."""
     ids = np.unique(view.marker_ids)
-    if len(ids) < MIN_MARKERS_PER_VIEW:
-        return f"{len(ids)} marker(s), needs at least {MIN_MARKERS_PER_VIEW}"
-    rc = np.array([board.cell_of(int(i)) for i in ids])
+    what = "point" if board.has_points else "marker"
+    least = MIN_POINTS_PER_VIEW if board.has_points else MIN_MARKERS_PER_VIEW
+    if len(ids) < least:
+        return f"{len(ids)} {what}(s), needs at least {least}"
+    rc = board.feature_cells(ids)
     if len(np.unique(rc[:, 0])) < 2 or len(np.unique(rc[:, 1])) < 2:
-        return "its markers lie on one line of the board (needs two rows and two columns)"
+        return f"its {what}s lie on one line of the board (needs two rows and two columns)"
     return None
 
 

@@ -230,8 +230,8 @@ class MarkerTracker:
         -1 where none is tracked), and (M, K) bool where one is."""
         board, reach = self.board, self.config.reach
         grid = np.full((board.rows + 2 * reach, board.cols + 2 * reach), -1, np.int64)
-        cell = ids - board.first_id
-        r, c = cell // board.cols + reach, cell % board.cols + reach
+        rc = board.marker_cells(ids) + reach
+        r, c = rc[:, 0], rc[:, 1]
         grid[r[valid], c[valid]] = np.flatnonzero(valid)
         index = grid[r[:, None] + self._offsets[:, 0], c[:, None] + self._offsets[:, 1]]
         return index, index >= 0
