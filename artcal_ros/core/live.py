@@ -90,6 +90,7 @@ class _Job:
     index: int
     image: np.ndarray
     ticket: int | None      # a held view, or None for a refresh
+    generation: int         # the reset count when it was queued
 
 
 class LiveDetection:
@@ -125,6 +126,8 @@ class LiveDetection:
         self._stopping = False
         self._measured = 0
         self._refused = 0
+        self._generation = 0  # counts resets: a detection started before one adds nothing
+        self._commit = threading.Lock()
         self._thread = threading.Thread(target=self._run, name="detect-precise", daemon=True)
         self._thread.start()
 
@@ -144,12 +147,12 @@ class LiveDetection:
                 cfg = self.config
                 if (len(self._queue) < cfg.max_queued
                         and self._queued_bytes + image.nbytes <= cfg.max_queued_bytes):
-                    self._queue.append(_Job(index, image, ticket))
+                    self._queue.append(_Job(index, image, ticket, self._generation))
                     self._queued_bytes += image.nbytes
                     queued = True
                 else:
                     self._refused += 1
-            self._latest = _Job(index, image, None)
+            self._latest = _Job(index, image, None, self._generation)
             self._cond.notify()
         if ticket is not None and not queued:
             self.collector.release(ticket)
@@ -197,11 +200,18 @@ class LiveDetection:
                 with contextlib.suppress(Exception):
                     self._on_error(e)
             return
-        self.tracker.seed(job.index, dets)
-        if job.ticket is not None:
-            kept = self.collector.settle(job.ticket, dets)
-        else:
-            kept = self.collector.add(dets)
+        # The generation test and the collection's change are one step against reset():
+        # a reset either comes before (this detection is dropped) or clears it after.
+        with self._commit:
+            if job.generation != self._generation:  # measured across a reset
+                if job.ticket is not None:
+                    self.collector.release(job.ticket)
+                return
+            self.tracker.seed(job.index, dets)
+            if job.ticket is not None:
+                kept = self.collector.settle(job.ticket, dets)
+            else:
+                kept = self.collector.add(dets)
         if self._on_measured is not None:
             self._on_measured(job.image, dets, kept)
 
@@ -224,12 +234,16 @@ class LiveDetection:
             return True
 
     def reset(self) -> None:
-        """Drop the queued frames and the tracked markers (the collection is reset apart)."""
-        with self._cond:
+        """Drop the queued frames and the tracked markers (the collection is reset apart).
+
+        A precise detection still running when this is called adds nothing afterwards.
+        """
+        with self._commit, self._cond:
             jobs = list(self._queue)
             self._queue.clear()
             self._queued_bytes = 0
             self._latest = None
+            self._generation += 1
         for job in jobs:
             if job.ticket is not None:
                 self.collector.release(job.ticket)
