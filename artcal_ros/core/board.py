@@ -155,7 +155,13 @@ class Board:
         k = marker_id - self.first_id
         return k // self.cols, k % self.cols
 
-    def _cells(self, marker_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def has_ids(self, marker_ids: np.ndarray) -> np.ndarray:
+        """(N,) bool: which of ``marker_ids`` (N,) belong to this board."""
+        k = np.asarray(marker_ids, dtype=np.int64).reshape(-1) - self.first_id
+        return (k >= 0) & (k < self.cols * self.rows)
+
+    def cells_of(self, marker_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(rows (N,), cols (N,)) int64 of markers on the board; BoardError for ids not on it."""
         k = np.asarray(marker_ids, dtype=np.int64) - self.first_id
         if k.size and (k.min() < 0 or k.max() >= self.cols * self.rows):
             bad = np.asarray(marker_ids)[(k < 0) | (k >= self.cols * self.rows)]
@@ -165,7 +171,7 @@ class Board:
     def object_corners(self, marker_ids: np.ndarray | None = None) -> np.ndarray:
         """(N, 4, 3) float64, metres: each marker's corners TL, TR, BR, BL in the board frame."""
         ids = self.ids if marker_ids is None else np.asarray(marker_ids)
-        rows, cols = self._cells(ids)
+        rows, cols = self.cells_of(ids)
         x0 = cols * self.pitch
         y0 = rows * self.pitch
         L = self.marker_length

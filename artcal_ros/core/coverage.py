@@ -153,7 +153,7 @@ def solve_points(dets: Detections, board: Board, points: str) -> tuple[np.ndarra
     """
     if points not in POINTS_MODES:
         raise ValueError(f"points mode {points!r} is not one of {', '.join(POINTS_MODES)}")
-    keep = np.array([board.has_id(int(i)) for i in dets.ids], dtype=bool).reshape(-1)
+    keep = board.has_ids(dets.ids)
     ids, corners = dets.ids[keep], dets.corners_px[keep]
     has_corners = np.all(np.isfinite(corners), axis=(1, 2))
     if points == "centers":

@@ -17,7 +17,7 @@ from collections.abc import Sequence
 
 import numpy as np
 
-from artcal_ros.core.calibrate.model import free_columns, free_jacobian
+from artcal_ros.core.calibrate.model import free_columns, free_jacobian, refine_pose
 from artcal_ros.core.calibrate.solve import (
     Solution,
     ViewPoints,
@@ -142,7 +142,8 @@ def cross_validate(views: Sequence[ViewPoints], sol: Solution, *, folds: int = 5
     """k-fold hold-out reprojection RMS over views, pixels (NaN with fewer than 4 views).
 
     Each fold is solved from the other views (starting from ``sol``); every held-out view's
-    pose is then fitted with that fold's intrinsics fixed, and its points' errors pooled.
+    pose is then fitted with that fold's intrinsics fixed (starting from its pose in
+    ``sol``), and its points' errors pooled.
     """
     n = len(views)
     if n < 4:
@@ -165,7 +166,13 @@ def cross_validate(views: Sequence[ViewPoints], sol: Solution, *, folds: int = 5
             return float("inf")
         for i in sorted(test):
             v = views[i]
-            rvec, tvec = estimate_pose(v, fold.camera_matrix, fold.dist_coeffs, fold.model)
+            # The full solve's pose of this view is a few Gauss-Newton steps from its pose
+            # under the fold's intrinsics; from scratch only if that start fails.
+            rvec, tvec, err = refine_pose(v, fold.camera_matrix, fold.dist_coeffs, fold.model,
+                                          sol.rvecs[i], sol.tvecs[i])
+            if not np.isfinite(err):
+                rvec, tvec = estimate_pose(v, fold.camera_matrix, fold.dist_coeffs,
+                                           fold.model)
             r = v.image_points - project(v.object_points, rvec, tvec, fold.camera_matrix,
                                          fold.dist_coeffs, fold.model)
             sq.append(np.sum(r ** 2, axis=1))

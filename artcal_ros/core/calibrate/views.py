@@ -41,7 +41,7 @@ def view_points(det: Detections, board: Board, points: str, index: int) -> ViewP
     """
     if points not in POINTS_MODES:
         raise CalibrationError(f"points mode {points!r} is not one of {', '.join(POINTS_MODES)}")
-    keep = np.array([board.has_id(int(i)) for i in det.ids], dtype=bool)
+    keep = board.has_ids(det.ids)
     if points == "centers":
         img = det.centers_px[keep]
         ok = np.all(np.isfinite(img), axis=1)
@@ -103,7 +103,7 @@ def layout_outliers(view: ViewPoints, board: Board) -> np.ndarray:
     pos = np.zeros((k, 2))
     np.add.at(pos, inverse, view.image_points)
     pos /= np.bincount(inverse, minlength=k)[:, None]
-    rc = np.array([board.cell_of(int(i)) for i in ids], dtype=np.float64).reshape(-1, 2)
+    rc = np.column_stack(board.cells_of(ids)).astype(np.float64)
     # One affine fit per marker, all at once: normal equations summed over neighbours.
     near = np.max(np.abs(rc[:, None, :] - rc[None, :, :]), axis=2) <= 2
     np.fill_diagonal(near, False)
@@ -125,8 +125,8 @@ def view_problem(view: ViewPoints, board: Board) -> str | None:
     ids = np.unique(view.marker_ids)
     if len(ids) < MIN_MARKERS_PER_VIEW:
         return f"{len(ids)} marker(s), needs at least {MIN_MARKERS_PER_VIEW}"
-    rc = np.array([board.cell_of(int(i)) for i in ids])
-    if len(np.unique(rc[:, 0])) < 2 or len(np.unique(rc[:, 1])) < 2:
+    rows, cols = board.cells_of(ids)
+    if len(np.unique(rows)) < 2 or len(np.unique(cols)) < 2:
         return "its markers lie on one line of the board (needs two rows and two columns)"
     return None
 
