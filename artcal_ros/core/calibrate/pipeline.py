@@ -42,11 +42,12 @@ from artcal_ros.core.calibrate.solve import (
 )
 from artcal_ros.core.calibrate.views import (
     POINTS_MODES,
+    GeometryCache,
     check_views,
+    coverage_cells,
     layout_outliers,
     lens_corrected_centers,
     select_views,
-    view_geometry,
     view_points,
     view_problem,
 )
@@ -244,17 +245,19 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
             usable.append(v)
         else:
             dropped.append(DroppedView(i, det.source, problem))
-    check_views(usable, size, [(d.view_index, d.reason) for d in dropped])
+    # Each view's rough geometry (guessed camera) once, for the checks and the selection.
+    cache = GeometryCache()
+    check_views(usable, size, [(d.view_index, d.reason) for d in dropped], cache=cache)
     if len(usable) > max_views:
         say(f"selecting {max_views} of {len(usable)} views")
-        keep = set(select_views(usable, size, max_views))
+        keep = set(select_views(usable, size, max_views, cache=cache))
         for k, v in enumerate(usable):
             if k not in keep:
                 dropped.append(DroppedView(v.index, v.source, "not selected (similar views kept)"))
         usable = [v for k, v in enumerate(usable) if k in keep]
     outliers: list[np.ndarray] = []
     usable, points_dropped = _layout_check(usable, board, dropped, outliers)
-    check_views(usable, size, [(d.view_index, d.reason) for d in dropped])
+    check_views(usable, size, [(d.view_index, d.reason) for d in dropped], cache=cache)
 
     say(f"solving {model} from {len(usable)} views")
     views = usable
@@ -275,7 +278,7 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         if len(kept) == len(views) and removed == 0:
             break
         points_dropped += removed
-        check_views(kept, size, [(d.view_index, d.reason) for d in dropped])
+        check_views(kept, size, [(d.view_index, d.reason) for d in dropped], cache=cache)
         views = kept
         say(f"re-solving without outliers ({len(views)} views, {points_dropped} points dropped)")
         sol, _ = solve(views, size, model, options=options, initial=sol, weighted=weighted)
@@ -291,8 +294,7 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
     if cross_validation_folds > 1:
         say(f"{cross_validation_folds}-fold cross-validation")
         holdout = cross_validate(views, sol, folds=cross_validation_folds, weighted=weighted)
-    geo = view_geometry(views, size, sol.camera_matrix)
-    coverage = float(np.mean(geo.cells.any(axis=0)))
+    coverage = float(np.mean(coverage_cells(views, size).any(axis=0)))
     warnings = _warnings(sol, size, views, std_dev, effects, rms, holdout, coverage)
     per_view = np.array([float(np.sqrt(np.mean(np.sum(r ** 2, axis=1)))) for r in res])
     return CalibrationResult(
