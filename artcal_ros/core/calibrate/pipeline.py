@@ -271,7 +271,7 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
             views = [lens_corrected_centers(v, solution_camera(sol, size))
                      for v in views]
             sol, _ = solve(views, size, model, options=options, initial=sol,
-                           weighted=weighted)
+                           weighted=weighted, poses=(sol.rvecs, sol.tvecs))
     for _round in range(8):
         res = residuals(views, sol)
         kept, removed = _reject(views, res, board, size, dropped, outliers)
@@ -279,9 +279,10 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
             break
         points_dropped += removed
         check_views(kept, size, [(d.view_index, d.reason) for d in dropped], cache=cache)
-        views = kept
+        previous, views = views, kept
         say(f"re-solving without outliers ({len(views)} views, {points_dropped} points dropped)")
-        sol, _ = solve(views, size, model, options=options, initial=sol, weighted=weighted)
+        sol, _ = solve(views, size, model, options=options, initial=sol, weighted=weighted,
+                       poses=_poses_of(views, previous, sol))
     res = residuals(views, sol)
     rms, std, worst = _stats(res)
     _sanity(sol, views, size, rms)
@@ -312,6 +313,15 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         point_view=np.concatenate([np.full(len(v), v.index) for v in views]),
         outliers_px=(np.concatenate(outliers) if outliers else np.zeros((0, 2))),
         solve_time_s=time.monotonic() - start)
+
+
+def _poses_of(views: Sequence[ViewPoints], solved: Sequence[ViewPoints],
+              sol: Solution) -> tuple[np.ndarray, np.ndarray]:
+    """(rvecs (V, 3), tvecs (V, 3)) of ``views`` in ``sol``, the solve of ``solved`` (a
+    superset of them: the same views, some with fewer points)."""
+    at = {v.index: k for k, v in enumerate(solved)}
+    rows = [at[v.index] for v in views]
+    return sol.rvecs[rows], sol.tvecs[rows]
 
 
 def _named_std_devs(free: tuple[str, ...], std_dev: np.ndarray) -> dict[str, float]:

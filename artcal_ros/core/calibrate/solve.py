@@ -112,7 +112,9 @@ def _initial_fisheye(views: list[ViewPoints], image_size: tuple[int, int],
 
 def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *,
           options: SolveOptions = _DEFAULT, initial: Solution | None = None,
-          weighted: bool = False) -> tuple[Solution, np.ndarray | None]:
+          weighted: bool = False,
+          poses: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[Solution,
+                                                                     np.ndarray | None]:
     """Fit intrinsics and poses to every point of ``views`` (no outlier handling).
 
     Without ``initial`` the fit grows outwards from the image centre: first the points
@@ -127,6 +129,9 @@ def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *,
         options: what the solve holds fixed (every stage holds it).
         initial: start from these intrinsics.
         weighted: weight each point by 1 / sigma^2 (``ViewPoints.sigma_px``).
+        poses: with ``initial``, (rvecs (V, 3), tvecs (V, 3)) T_cam_board of ``views`` to
+            start from (a previous solve of nearly the same points). A weighted solve then
+            goes straight to the point-weighted LM, which OpenCV's solve would only start.
 
     Returns:
         (solution, OpenCV's standard deviations of the intrinsics or None).
@@ -134,6 +139,8 @@ def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *,
     Raises:
         CalibrationError: the solver did not converge to a usable camera.
     """
+    if initial is not None and poses is not None and (weighted or model == "equidistant"):
+        return _refine(views, image_size, model, options, initial, poses, weighted)
     if initial is None:
         w, h = image_size
         center = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
@@ -156,6 +163,30 @@ def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *,
                 initial = None
     return _solve_once(views, image_size, model, options=options, initial=initial,
                        weighted=weighted)
+
+
+def _refine(views: list[ViewPoints], image_size: tuple[int, int], model: str,
+            options: SolveOptions, initial: Solution, poses: tuple[np.ndarray, np.ndarray],
+            weighted: bool) -> tuple[Solution, None]:
+    """The bundle adjustment alone, from ``initial``'s intrinsics and the given poses."""
+    free = free_parameters(model, options=options)
+    K0, D0 = constrain(initial.camera_matrix, initial.dist_coeffs, model, image_size, options)
+    K, dist, rv, tv = bundle_adjust(views, K0, D0, model, free=free, weighted=weighted,
+                                    poses=poses)
+    return _checked(K, dist, rv, tv, model, free), None
+
+
+def _checked(K: np.ndarray, dist: np.ndarray, rv: Any, tv: Any, model: str,
+             free: tuple[str, ...]) -> Solution:
+    """The solution, or CalibrationError if the solver diverged."""
+    K = np.asarray(K, dtype=np.float64)
+    dist = np.asarray(dist, dtype=np.float64).ravel()
+    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(dist)) and K[0, 0] > 0 and K[1, 1] > 0):
+        raise CalibrationError(
+            f"the {model} solver diverged (non-finite or negative focal length); add views "
+            "that tilt the board in different directions and fill the image corners")
+    return Solution(K, dist, model, np.asarray(rv, np.float64).reshape(-1, 3),
+                    np.asarray(tv, np.float64).reshape(-1, 3), free)
 
 
 def _first_stage(model: str, options: SolveOptions) -> SolveOptions:
@@ -242,13 +273,7 @@ def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str
             poses=(np.asarray(rv, np.float64).reshape(-1, 3),
                    np.asarray(tv, np.float64).reshape(-1, 3)))
         std = None
-    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(dist)) and K[0, 0] > 0 and K[1, 1] > 0):
-        raise CalibrationError(
-            f"the {model} solver diverged (non-finite or negative focal length); add views "
-            "that tilt the board in different directions and fill the image corners")
-    sol = Solution(K, dist, model, np.asarray(rv, np.float64).reshape(-1, 3),
-                   np.asarray(tv, np.float64).reshape(-1, 3), free)
-    return sol, std
+    return _checked(K, dist, rv, tv, model, free), std
 
 
 def residuals(views: list[ViewPoints], sol: Solution) -> list[np.ndarray]:
