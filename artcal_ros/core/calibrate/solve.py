@@ -145,12 +145,16 @@ def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *,
         w, h = image_size
         center = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
         half_diag = 0.5 * float(np.hypot(w, h))
+        # Positions in ``views`` of the views the last stage solved, when it solved the
+        # final model itself (its poses can start the final fit).
+        solved: list[int] | None = None
         for stage, frac in enumerate((0.5, 0.75)):
-            sub = []
-            for v in views:
+            sub, at = [], []
+            for k, v in enumerate(views):
                 near = np.linalg.norm(v.image_points - center, axis=1) < frac * half_diag
                 if near.sum() >= 8:
                     sub.append(v.subset(near))
+                    at.append(k)
             if len(sub) < 3 or sum(len(v) for v in sub) == sum(len(v) for v in views):
                 continue
             stage_model, stage_options = (("plumb_bob", _first_stage(model, options))
@@ -159,8 +163,18 @@ def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *,
             try:
                 initial, _ = _solve_once(sub, image_size, stage_model, options=stage_options,
                                          initial=initial)
+                solved = at if (stage_model, stage_options) == (model, options) else None
             except CalibrationError:
-                initial = None
+                initial, solved = None, None
+        if initial is not None and solved is not None and weighted and model != "equidistant":
+            # OpenCV's solve of every point (unweighted) would only start the weighted LM:
+            # start it from the last stage instead, which fitted the same model to each
+            # view's central points.
+            try:
+                return _refine(views, image_size, model, options, initial,
+                               _stage_poses(views, solved, initial), weighted)
+            except (CalibrationError, cv2.error, np.linalg.LinAlgError):
+                pass
     return _solve_once(views, image_size, model, options=options, initial=initial,
                        weighted=weighted)
 
@@ -174,6 +188,22 @@ def _refine(views: list[ViewPoints], image_size: tuple[int, int], model: str,
     K, dist, rv, tv = bundle_adjust(views, K0, D0, model, free=free, weighted=weighted,
                                     poses=poses)
     return _checked(K, dist, rv, tv, model, free), None
+
+
+def _stage_poses(views: list[ViewPoints], solved: list[int],
+                 stage: Solution) -> tuple[np.ndarray, np.ndarray]:
+    """(rvecs (V, 3), tvecs (V, 3)) of every view: ``stage``'s pose for the views it
+    solved (positions ``solved``), a single-view fit with its intrinsics for the rest."""
+    rvecs = np.empty((len(views), 3))
+    tvecs = np.empty((len(views), 3))
+    have = dict(zip(solved, range(len(solved)), strict=True))
+    for k, v in enumerate(views):
+        if k in have:
+            rvecs[k], tvecs[k] = stage.rvecs[have[k]], stage.tvecs[have[k]]
+        else:
+            rvecs[k], tvecs[k] = estimate_pose(v, stage.camera_matrix, stage.dist_coeffs,
+                                               stage.model)
+    return rvecs, tvecs
 
 
 def _checked(K: np.ndarray, dist: np.ndarray, rv: Any, tv: Any, model: str,
