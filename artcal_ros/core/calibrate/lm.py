@@ -32,7 +32,8 @@ def point_weights(view: ViewPoints) -> np.ndarray:
 def bundle_adjust(views: list[ViewPoints], K0: np.ndarray, D0: np.ndarray, model: str,
                    *, free: tuple[str, ...], weighted: bool = False,
                    poses: tuple[np.ndarray, np.ndarray] | None = None,
-                   max_iterations: int = 100) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                   max_iterations: int = 100,
+                   tolerance: float = 1e-12) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                        np.ndarray]:
     """Levenberg-Marquardt over the free intrinsics and every view's pose.
 
@@ -47,6 +48,9 @@ def bundle_adjust(views: list[ViewPoints], K0: np.ndarray, D0: np.ndarray, model
             stay at K0, D0, and a tied fx = fy moves both: start from K0 with fx = fy).
         weighted: weight each point by :func:`point_weights`.
         poses: (rvecs (V, 3), tvecs (V, 3)) to start from; estimated if None.
+        max_iterations: at most this many accepted steps.
+        tolerance: stop once a step lowers the weighted squared error by less than this
+            fraction of it.
 
     Returns:
         (K (3, 3), dist (n,), rvecs (V, 3), tvecs (V, 3)).
@@ -124,7 +128,7 @@ def bundle_adjust(views: list[ViewPoints], K0: np.ndarray, D0: np.ndarray, model
             trial = cost(x_in + d_in, x_ex + d_ex)
             if trial < current:
                 x_in, x_ex = x_in + d_in, x_ex + d_ex
-                done = current - trial < 1e-12 * max(current, 1e-30)
+                done = current - trial < tolerance * max(current, 1e-30)
                 lam = max(lam / 3.0, 1e-9)
                 improved = True
                 break
