@@ -35,6 +35,9 @@ __all__ = ["DIST_NAMES", "INTRINSIC_NAMES", "MODELS", "Solution", "SolveOptions"
            "project_jacobian", "residuals", "solve"]
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-10)
+# A fit that only starts another (the staged fits of the central points) stops sooner: the
+# fit after it moves every parameter by far more than this settles.
+_START_CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 30, 1e-6)
 _DEFAULT = SolveOptions()
 _FIX_K = (cv2.CALIB_FIX_K1, cv2.CALIB_FIX_K2, cv2.CALIB_FIX_K3, cv2.CALIB_FIX_K4,
           cv2.CALIB_FIX_K5, cv2.CALIB_FIX_K6)
@@ -162,7 +165,7 @@ def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *,
                                           else (model, options))
             try:
                 initial, _ = _solve_once(sub, image_size, stage_model, options=stage_options,
-                                         initial=initial)
+                                         initial=initial, criteria=_START_CRITERIA)
                 solved = at if (stage_model, stage_options) == (model, options) else None
             except CalibrationError:
                 initial, solved = None, None
@@ -227,7 +230,9 @@ def _first_stage(model: str, options: SolveOptions) -> SolveOptions:
 
 def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str, *,
                 options: SolveOptions = _DEFAULT, initial: Solution | None = None,
-                weighted: bool = False) -> tuple[Solution, np.ndarray | None]:
+                weighted: bool = False,
+                criteria: tuple[int, int, float] = _CRITERIA) -> tuple[Solution,
+                                                                       np.ndarray | None]:
     """One fit of intrinsics and poses to every point of ``views``.
 
     Args:
@@ -237,6 +242,8 @@ def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str
         options: what the solve holds fixed.
         initial: start from these intrinsics instead of OpenCV's initialisation (moved
             onto the constraints of ``options`` first).
+        weighted: refine with the point-weighted LM after OpenCV's solve.
+        criteria: OpenCV's termination criteria (the default: to convergence).
 
     Returns:
         (solution, OpenCV's standard deviations of the intrinsics or None).
@@ -271,7 +278,8 @@ def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str
                 # Higher-order terms free from the start often send OpenCV's solve into a
                 # wrong minimum; start them from the k1 k2 p1 p2 fit instead.
                 initial, _ = _solve_once(views, image_size, "plumb_bob",
-                                         options=_first_stage(model, options))
+                                         options=_first_stage(model, options),
+                                         criteria=_START_CRITERIA)
             if initial is not None:
                 # With a guess OpenCV holds fixed terms at their given values: give it the
                 # held ones (principal point, fx = fy, zeros).
@@ -285,7 +293,7 @@ def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str
                 K0, D0 = np.eye(3), np.zeros(14)
             _, K, D, rv, tv, std_i, _, _ = cv2.calibrateCameraExtended(
                 [o.astype(np.float32) for o in obj], [i.astype(np.float32) for i in img],
-                image_size, K0, D0, flags=flags, criteria=_CRITERIA)
+                image_size, K0, D0, flags=flags, criteria=criteria)
             dist = np.asarray(D, dtype=np.float64).ravel()[:n]
             std_all = np.asarray(std_i, dtype=np.float64).ravel()
             std = np.concatenate([std_all[:4], std_all[4:4 + n]])
