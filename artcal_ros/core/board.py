@@ -309,6 +309,15 @@ class Board:
         r, c = self._marker_cells[marker_id - self.first_id]
         return int(r), int(c)
 
+    def has_ids(self, marker_ids: np.ndarray) -> np.ndarray:
+        """(N,) bool: which of ``marker_ids`` (N,) belong to this board."""
+        k = np.asarray(marker_ids, dtype=np.int64).reshape(-1) - self.first_id
+        return np.asarray((k >= 0) & (k < self.n_markers))
+
+    def cells_of(self, marker_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """(rows (N,), cols (N,)) int64 of markers on the board; BoardError for ids not on it."""
+        return self._cells(marker_ids)
+
     def _cells(self, marker_ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         k = np.asarray(marker_ids, dtype=np.int64).reshape(-1) - self.first_id
         if k.size and (k.min() < 0 or k.max() >= self.n_markers):

@@ -165,7 +165,7 @@ def solve_points(dets: Detections, board: Board, points: str) -> tuple[np.ndarra
     if board.has_points and (len(dets.point_ids) or not board.n_markers):
         pids, pts = point_correspondences(dets, board)
         return board.object_points(pids), pts
-    keep = np.array([board.has_id(int(i)) for i in dets.ids], dtype=bool).reshape(-1)
+    keep = board.has_ids(dets.ids)
     ids, corners = dets.ids[keep], dets.corners_px[keep]
     has_corners = np.all(np.isfinite(corners), axis=(1, 2))
     if points == "centers":

@@ -180,9 +180,10 @@ class MarkerTracker:
         tl, tr, bl = (self._object_corners[:, k] for k in (0, 1, 3))
         grid = (tl[:, None, None] + f[None, None, :, None] * (tr - tl)[:, None, None]
                 + f[None, :, None, None] * (bl - tl)[:, None, None])      # (N, n, n, 2)
-        self._modules = (grid - self._object_centers[:, None, None]).reshape(len(tl), -1, 2)
-        self._white = np.stack([board.marker_modules(int(i)) for i in board.ids]
-                               ).reshape(len(tl), -1)
+        # (a chessboard has no markers: nothing is tracked on it)
+        self._modules = (grid - self._object_centers[:, None, None]).reshape(len(tl), n * n, 2)
+        self._white = (np.stack([board.marker_modules(int(i)) for i in board.ids])
+                       .reshape(len(tl), n * n) if len(tl) else np.zeros((0, n * n), bool))
 
     def reset(self) -> None:
         """Forget every frame and marker (another camera, or a new image size)."""
