@@ -346,6 +346,13 @@ class ViewCollector:
             return len(dets.point_ids) < max(self.config.min_markers, 8)
         return len(dets) < self.config.min_markers
 
+    def _geometry_of(self, dets: Detections, cfg: CoverageConfig
+                     ) -> tuple[tuple[int, int], ViewGeometry]:
+        # The pose costs a PnP solve: callers run it outside the lock (it depends on this
+        # view only).
+        size = (int(dets.image_size[0]), int(dets.image_size[1]))
+        return size, view_geometry(*solve_points(dets, self.board, cfg.points), size)
+
     def add(self, dets: Detections) -> bool:
         """Offer one view; return whether it was kept (enough markers, new, room left).
 
@@ -355,9 +362,7 @@ class ViewCollector:
         cfg = self.config
         if self._too_few(dets):
             return False
-        size = (int(dets.image_size[0]), int(dets.image_size[1]))
-        # The pose costs a PnP solve: outside the lock, it depends on this view only.
-        geometry = view_geometry(*solve_points(dets, self.board, cfg.points), size)
+        size, geometry = self._geometry_of(dets, cfg)
         with self._lock:
             # The size test, the reset and the append are one step: a reset or a view of
             # another size coming in between must not leave views of two sizes together.
@@ -383,8 +388,7 @@ class ViewCollector:
         cfg = self.config
         if self._too_few(dets, tracked=True):
             return None
-        size = (int(dets.image_size[0]), int(dets.image_size[1]))
-        geometry = view_geometry(*solve_points(dets, self.board, cfg.points), size)
+        _, geometry = self._geometry_of(dets, cfg)
         with self._lock:
             if len(self._views) + len(self._pending) >= cfg.max_stored \
                     or not self._is_new(dets, geometry, cfg):

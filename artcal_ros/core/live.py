@@ -122,7 +122,6 @@ class LiveDetection:
         self._queued_bytes = 0
         self._latest: _Job | None = None
         self._last_refresh = -np.inf
-        self._busy = False
         self._stopping = False
         self._measured = 0
         self._refused = 0
@@ -181,12 +180,10 @@ class LiveDetection:
                     job = self._next_job()
                 if self._stopping or job is None:
                     return
-                self._busy = True
             try:
                 self._measure(job)
             finally:
                 with self._cond:
-                    self._busy = False
                     self._measured += 1
                     self._cond.notify_all()
 
