@@ -20,8 +20,13 @@ the context), and later signals change nothing.
 
 from __future__ import annotations
 
+import contextlib
+import faulthandler
+import os
 import signal
+import sys
 import threading
+import time
 from types import FrameType
 
 import rclpy
@@ -29,6 +34,10 @@ from rclpy.executors import Executor, ExternalShutdownException
 from rclpy.node import Node
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
+# Seconds an orderly stop may take before the process leaves anyway. The bounded waits of a
+# stop add up to a few seconds; a supervisor (ros2 launch, a test) escalates to SIGKILL
+# after ~10 s, and a node killed that way loses its last session save and log lines.
+STOP_GRACE_S = 6.0
 
 
 class StopSignals:
@@ -39,16 +48,22 @@ class StopSignals:
         received: the signal that set it (a number), once it came.
     """
 
-    def __init__(self) -> None:
+    def __init__(self, grace_s: float | None = STOP_GRACE_S) -> None:
         self.event = threading.Event()
         self.received: list[int] = []
+        self.grace_s = grace_s
 
     @classmethod
-    def install(cls) -> StopSignals:
+    def install(cls, grace_s: float | None = STOP_GRACE_S) -> StopSignals:
         """Replace the SIGINT and SIGTERM handlers of this process with one that sets
         the returned object's event (pass ``SignalHandlerOptions.NO`` to ``rclpy.init``
-        so rclpy does not install its own over them). After the first, both are ignored."""
-        stop = cls()
+        so rclpy does not install its own over them). After the first, both are ignored.
+
+        ``grace_s``: once a stop signal came, the process ends at the latest this many
+        seconds later (exit status 0, after a warning naming the threads still busy and
+        their stacks on stderr), whatever thread is still stuck; None: no limit.
+        """
+        stop = cls(grace_s)
         for sig in STOP_SIGNALS:
             signal.signal(sig, stop._on_signal)
         return stop
@@ -61,10 +76,34 @@ class StopSignals:
         # finalizes, and a signal then would end the process with -SIGINT after a clean stop.
         for sig in STOP_SIGNALS:
             signal.signal(sig, signal.SIG_IGN)
+        if self.grace_s is not None:
+            threading.Thread(target=_leave_after, args=(self.grace_s,), name="stop-watchdog",
+                             daemon=True).start()
 
     def is_set(self) -> bool:
         """True once a stop signal came."""
         return self.event.is_set()
+
+
+def _leave_after(grace_s: float) -> None:
+    """End the process ``grace_s`` seconds from now unless it ended by itself before.
+
+    A daemon thread: it dies with a stop that finishes in time, and it still runs while the
+    interpreter waits for non-daemon threads at exit (an executor's pool thread stuck in a
+    callback would otherwise hold the process forever).
+    """
+    time.sleep(grace_s)
+    busy = sorted(t.name for t in threading.enumerate()
+                  if t.is_alive() and t is not threading.current_thread())
+    with contextlib.suppress(Exception):  # a closed stream: leave all the same
+        sys.stderr.write(f"[WARN] stopping took longer than {grace_s:g} s; leaving now "
+                         f"(threads still running: {', '.join(busy) or 'none'}; their stacks "
+                         "follow)\n")
+        sys.stderr.flush()
+        faulthandler.dump_traceback(sys.stderr, all_threads=True)
+    with contextlib.suppress(Exception):  # a closed stream: leave all the same
+        sys.stdout.flush()
+    os._exit(0)
 
 
 def spin_until_stopped(executor: Executor, stop: StopSignals, *,
