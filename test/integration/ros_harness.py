@@ -98,7 +98,8 @@ class NodeProcess(processes.NodeProcess):
         killed_before = self.killed  # a second stop() of a killed node just gives its status
         status = super().stop(timeout)
         if self.killed and not killed_before:
-            raise AssertionError(f"{self.name} ignored SIGINT for {timeout:g} s")
+            raise AssertionError(f"{self.name} ignored SIGINT for {timeout:g} s; its output "
+                                 f"ended:\n{self.output()[-4000:]}")
         return status
 
 
