@@ -13,11 +13,8 @@
 - ``charuco`` is OpenCV's ``CharucoBoard``: ``cols`` x ``rows`` squares (squaresX,
   squaresY), a marker in every white square, point ids OpenCV's charuco corner ids, the
   origin at the squares' top-left outer corner, ``legacy_pattern`` as ``setLegacyPattern``.
-- ``aprilgrid`` is Kalibr's AprilGrid (:mod:`artcal_ros.core.boards.aprilgrid`):
-  ``cols`` x ``rows`` tag36h11 tags (tagCols, tagRows) of side ``marker_length`` (tagSize),
-  ``marker_separation`` (tagSize x tagSpacing) apart, ids Kalibr's (tag 0 bottom-left, row-major
-  upwards); the frame is the marker grid's (origin at the top-left tag's outer corner, y
-  down); its points are the tag corners with Kalibr's point ids.
+- ``aprilgrid`` is Kalibr's AprilGrid (:mod:`artcal_ros.core.boards.aprilgrid`) in the
+  marker grid's frame: Kalibr's tag ids (tag 0 bottom-left) and point ids (the tag corners).
 
 A marker is ``bits + 2`` modules wide (a one-module border around the code).
 With polarity ``black`` a marker is a black border on white paper; ``white``
@@ -39,6 +36,7 @@ import numpy as np
 from artcal_ros.core.boards import BUILT_TYPES, PLANNED_TYPES, POINT_TYPES
 from artcal_ros.core.boards import aprilgrid as kalibr
 from artcal_ros.core.boards.chess import ChessLayout
+from artcal_ros.core.boards.text import cv_board, describe
 from artcal_ros.core.errors import BoardError
 
 POLARITIES = ("black", "white", "mixed", "any")
@@ -136,16 +134,10 @@ class Board:
                 f"{self.module_length:.4g} m)")
 
     def _aprilgrid_dictionary(self) -> cv2.aruco.Dictionary:
-        # the parameter's default (DICT_6X6_1000) means "not given" here
-        if self.dictionary_name not in (*kalibr.ACCEPTED_DICTIONARIES, "DICT_6X6_1000"):
-            raise BoardError(f"parameter 'board.dictionary': {self.dictionary_name!r}; an "
-                             "aprilgrid prints tag36h11: use tag36h11 (or leave it unset)")
-        if self.polarity != "black":
-            raise BoardError(f"parameter 'board.polarity': {self.polarity!r}; an aprilgrid "
-                             "prints black tags on white: use black")
-        if self.first_id != 0:
-            raise BoardError(f"parameter 'board.first_id': {self.first_id}; Kalibr's "
-                             "aprilgrid numbers its tags from 0: use 0")
+        complaint = kalibr.aprilgrid_complaint(self.dictionary_name, self.polarity,
+                                               self.first_id)
+        if complaint:
+            raise BoardError(complaint)
         object.__setattr__(self, "dictionary_name", "tag36h11")
         return kalibr.aprilgrid_dictionary(self.cols * self.rows)
 
@@ -257,8 +249,7 @@ class Board:
         """(M, 2) int64 (row, col) of each point in the board's grid of points."""
         ids = self._check_point_ids(point_ids)
         if self.board_type == "aprilgrid":
-            width = 2 * self.cols
-            return np.stack([2 * self.rows - 1 - ids // width, ids % width], axis=1)
+            return kalibr.point_cells(ids, self.cols, self.rows)
         if self.chess is None:
             return np.zeros((0, 2), np.int64)
         return self.chess.corner_cells(ids)
@@ -495,42 +486,9 @@ class Board:
         return lines[0], lines[1]
 
     def to_cv_board(self) -> cv2.aruco.Board:
-        """The equivalent OpenCV board: ``GridBoard`` or ``CharucoBoard`` (same ids and
-        object points); BoardError for a chessboard, which OpenCV has no class for."""
-        if self.board_type == "charuco":
-            b = cv2.aruco.CharucoBoard((self.cols, self.rows), self.square_length,
-                                       self.marker_length, self._dictionary,
-                                       self.ids.astype(np.int32))
-            b.setLegacyPattern(self.legacy_pattern)
-            return b
-        if self.board_type == "chessboard":
-            raise BoardError("a chessboard has no OpenCV board object; use object_points()")
-        if self.board_type == "aprilgrid":
-            return cv2.aruco.Board(list(self.object_corners().astype(np.float32)),
-                                   self._dictionary, self.ids.astype(np.int32))
-        return cv2.aruco.GridBoard((self.cols, self.rows), self.marker_length,
-                                   self.marker_separation, self._dictionary,
-                                   self.ids.astype(np.int32))
+        """The equivalent OpenCV board (:func:`artcal_ros.core.boards.text.cv_board`)."""
+        return cv_board(self)
 
     def describe(self) -> str:
         """One line stating the board's parameters (printed on the board's margin)."""
-        w, h = self.size_m
-        size = f"({w * 1000:g} x {h * 1000:g} mm)"
-        if self.board_type == "chessboard":
-            return (f"artcal chessboard {self.cols}x{self.rows} inner corners "
-                    f"square {self.square_length * 1000:g} mm {size}")
-        if self.board_type == "charuco":
-            legacy = " legacy pattern" if self.legacy_pattern else ""
-            return (f"artcal charuco {self.cols}x{self.rows} squares {self.dictionary_name} "
-                    f"ids {self.first_id}..{int(self.ids[-1])} "
-                    f"square {self.square_length * 1000:g} mm "
-                    f"marker {self.marker_length * 1000:g} mm{legacy} {size}")
-        if self.board_type == "aprilgrid":
-            return (f"artcal aprilgrid (Kalibr) {self.cols}x{self.rows} tag36h11 "
-                    f"tagSize {self.marker_length * 1000:g} mm "
-                    f"tagSpacing {self.marker_separation / self.marker_length:g} {size}")
-        return (f"artcal marker_grid {self.cols}x{self.rows} {self.dictionary_name} "
-                f"ids {self.first_id}..{int(self.ids[-1])} "
-                f"marker {self.marker_length * 1000:g} mm "
-                f"gap {self.marker_separation * 1000:g} mm polarity {self.polarity} "
-                f"{size}")
+        return describe(self)

@@ -90,7 +90,8 @@ def target_params(path: str | Path) -> dict[str, Any]:
         return {"board.type": "aprilgrid", "board.dictionary": "tag36h11",
                 "board.cols": int(f["tagCols"]), "board.rows": int(f["tagRows"]),
                 "board.marker_length": f["tagSize"],
-                "board.marker_separation": f["tagSize"] * f["tagSpacing"],
+                # rounded to the nanometre: 0.088 x 0.3 reads 0.0264, not 0.026399999999999996
+                "board.marker_separation": round(f["tagSize"] * f["tagSpacing"], 9),
                 "board.polarity": "black", "board.first_id": 0}
     if int(f["targetCols"]) < 2 or int(f["targetRows"]) < 2:
         raise ParameterError(f"--target {p}: a checkerboard needs at least 2 x 2 inner "

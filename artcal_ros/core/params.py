@@ -18,6 +18,7 @@ from typing import Any
 import yaml
 
 from artcal_ros.core.boards import BUILT_TYPES, PLANNED_TYPES
+from artcal_ros.core.boards.aprilgrid import aprilgrid_complaint
 from artcal_ros.core.camera import MODELS
 from artcal_ros.core.errors import ParameterError
 
@@ -162,17 +163,8 @@ def _board_fits(values: Mapping[str, ParamValue]) -> str | None:
     if kind == "marker_grid":
         return None
     if kind == "aprilgrid":
-        if values["board.polarity"] != "black":
-            return (f"parameter 'board.polarity': {values['board.polarity']!r}; an aprilgrid "
-                    "prints black tags on white: use black")
-        if values["board.dictionary"] not in ("tag36h11", "DICT_APRILTAG_36h11",
-                                              "DICT_6X6_1000"):
-            return (f"parameter 'board.dictionary': {values['board.dictionary']!r}; an "
-                    "aprilgrid prints tag36h11: use tag36h11 (or leave it unset)")
-        if int(values["board.first_id"]) != 0:
-            return ("parameter 'board.first_id': Kalibr's aprilgrid numbers its tags from 0: "
-                    "use 0")
-        return None
+        return aprilgrid_complaint(str(values["board.dictionary"]), str(values["board.polarity"]),
+                                   int(values["board.first_id"]))
     for name in ("board.cols", "board.rows"):
         if int(values[name]) < 2:
             what = "inner corners" if kind == "chessboard" else "squares"

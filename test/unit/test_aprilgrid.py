@@ -8,6 +8,7 @@ import json
 from functools import cache
 from pathlib import Path
 
+import cv2
 import numpy as np
 import pytest
 import yaml
@@ -18,6 +19,7 @@ from artcal_ros.core.detect import Detector
 from artcal_ros.core.errors import BoardError, ParameterError
 from artcal_ros.core.kalibr_target import target_params
 from artcal_ros.core.params import validate
+from artcal_ros.core.printable import board_to_png_px, write_printable
 from artcal_ros.synth import load_truth
 from artcal_ros.synth.camera import Camera
 from artcal_ros.synth.dataset import write_dataset
@@ -27,7 +29,7 @@ from artcal_ros.synth.view import RenderedView, render_view
 
 # EuRoC / TUM VI: tagCols 6, tagRows 6, tagSize 0.088, tagSpacing 0.3
 APRIL = Board(board_type="aprilgrid", cols=6, rows=6, marker_length=0.088,
-              marker_separation=0.088 * 0.3)
+              marker_separation=0.0264)
 SMALL = Board(board_type="aprilgrid", cols=3, rows=2, marker_length=0.05,
               marker_separation=0.05 * 0.25)
 # tag36h11 codes of ids 0 and 1 as the AprilTag family publishes them
@@ -89,6 +91,18 @@ def test_gap_crossings_are_black_and_gaps_white() -> None:
     x, y = np.array(cross + gap).T
     np.testing.assert_array_equal(APRIL.is_white(x, y), [False] * 3 + [True] * 3)
     np.testing.assert_allclose(APRIL.extent_m, (-s, -s, 6 * p, 6 * p), atol=1e-12)
+
+
+def test_printed_tags_sit_where_the_board_says(tmp_path: Path) -> None:
+    dpi = 4.0 * 25.4   # 4 px per mm: 20 px per 5 mm module
+    out = tmp_path / "april.png"
+    layout = write_printable(SMALL, out, dpi=dpi)
+    page = cv2.imread(str(out), cv2.IMREAD_GRAYSCALE)
+    dets = Detector(SMALL).detect(page)
+    np.testing.assert_array_equal(dets.ids, SMALL.ids)
+    want = board_to_png_px(layout, SMALL.object_corners().reshape(-1, 3)[:, :2], dpi)
+    err = np.linalg.norm(dets.corners_px.reshape(-1, 2) - want, axis=1)
+    assert err.max() < 0.1
 
 
 @pytest.mark.parametrize(("values", "message"), [
@@ -187,7 +201,7 @@ def test_kalibr_targets_translate_into_board_parameters(tmp_path: Path) -> None:
                  "tagSpacing: 0.3\n")
     p = target_params(f)
     assert Board.from_params(p) == Board(board_type="aprilgrid", cols=6, rows=7,
-                                         marker_length=0.088, marker_separation=0.088 * 0.3,
+                                         marker_length=0.088, marker_separation=0.0264,
                                          dictionary_name="tag36h11")
     f.write_text("target_type: 'checkerboard'\ntargetCols: 8\ntargetRows: 6\n"
                  "rowSpacingMeters: 0.108\ncolSpacingMeters: 0.108\n")

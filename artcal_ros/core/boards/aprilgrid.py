@@ -25,7 +25,29 @@ import numpy as np
 
 TAG_BITS = 6        # tag36h11: 6 x 6 code bits
 PIPELINE_BITS = 8   # code bits as the marker pipeline sees them (the black inner ring added)
-ACCEPTED_DICTIONARIES = ("tag36h11", "DICT_APRILTAG_36h11")
+# the parameter's default (DICT_6X6_1000) means "not given" on an aprilgrid
+ACCEPTED_DICTIONARIES = ("tag36h11", "DICT_APRILTAG_36h11", "DICT_6X6_1000")
+
+
+def aprilgrid_complaint(dictionary: str, polarity: str, first_id: int) -> str | None:
+    """What is wrong with these parameters for an aprilgrid (None when they fit), naming the
+    parameter; node, CLI and :class:`~artcal_ros.core.board.Board` share it."""
+    if dictionary not in ACCEPTED_DICTIONARIES:
+        return (f"parameter 'board.dictionary': {dictionary!r}; an aprilgrid prints tag36h11: "
+                "use tag36h11 (or leave it unset)")
+    if polarity != "black":
+        return (f"parameter 'board.polarity': {polarity!r}; an aprilgrid prints black tags on "
+                "white: use black")
+    if first_id != 0:
+        return (f"parameter 'board.first_id': {first_id}; Kalibr's aprilgrid numbers its tags "
+                "from 0: use 0")
+    return None
+
+
+def describe(cols: int, rows: int, tag_size: float, spacing_m: float, size: str) -> str:
+    """The line printed on an aprilgrid's margin, in Kalibr's terms."""
+    return (f"artcal aprilgrid (Kalibr) {cols}x{rows} tag36h11 tagSize {tag_size * 1000:g} mm "
+            f"tagSpacing {spacing_m / tag_size:g} {size}")
 
 
 def aprilgrid_dictionary(n_tags: int) -> cv2.aruco.Dictionary:
@@ -45,6 +67,13 @@ def aprilgrid_dictionary(n_tags: int) -> cv2.aruco.Dictionary:
         rows.append(cv2.aruco.Dictionary.getByteListFromBits(bits))
     return cv2.aruco.Dictionary(np.concatenate(rows, axis=0), PIPELINE_BITS,
                                 int(source.maxCorrectionBits))
+
+
+def point_cells(point_ids: np.ndarray, cols: int, rows: int) -> np.ndarray:
+    """(M, 2) int64 (row, col) of Kalibr's points in the 2 rows x 2 cols grid, row 0 at the
+    top."""
+    p = np.asarray(point_ids, dtype=np.int64).reshape(-1)
+    return np.stack([2 * rows - 1 - p // (2 * cols), p % (2 * cols)], axis=1)
 
 
 def tag_cells(tag_ids: np.ndarray, cols: int, rows: int) -> np.ndarray:
