@@ -5,6 +5,7 @@ calibration against the true camera."""
 from __future__ import annotations
 
 import json
+import time
 from functools import cache
 from pathlib import Path
 
@@ -233,3 +234,32 @@ def test_bad_kalibr_target_files_say_what_is_wrong(tmp_path: Path, text: str,
                  str(tmp_path / "c.yaml"), "--quiet"]) == 2
     err = capsys.readouterr().err
     assert message.split(":")[0] in err and "Traceback" not in err
+
+
+def test_live_collection_and_overlay_take_aprilgrid_views(tmp_path: Path) -> None:
+    from artcal_ros.core.coverage import CoverageConfig, ViewCollector
+    from artcal_ros.core.live import LiveDetection
+    from artcal_ros.core.overlay import render_overlay
+
+    cam = Camera.preset("webcam")
+    truth_path = write_dataset(APRIL, cam, tmp_path / "d", frames=4, seed=9,
+                               partial_fraction=0.0)
+    frames = [cv2.imread(str(tmp_path / "d" / f.file), cv2.IMREAD_GRAYSCALE)
+              for f in load_truth(truth_path).frames if f.file]
+    collector = ViewCollector(APRIL, CoverageConfig(min_views=2))
+    live = LiveDetection(APRIL, Detector(APRIL).detect, collector)
+    try:
+        for image in frames:
+            live.offer(image)
+            deadline = time.monotonic() + 20
+            while live.counts().measured == 0 and time.monotonic() < deadline:
+                time.sleep(0.02)
+            time.sleep(0.25)   # the newest frame is re-measured at most every refresh_s
+    finally:
+        live.stop(5.0)
+    assert len(collector.views) >= 2
+    assert all(len(v.ids) >= 8 for v in collector.views)
+    dets = Detector(APRIL).detect(frames[0])
+    drawn = render_overlay(frames[0], dets, collector.counts(), collector.readiness())
+    assert drawn.shape == (*frames[0].shape, 3)
+    assert np.any(drawn[..., 1] != drawn[..., 0])   # something was drawn in colour

@@ -1,9 +1,10 @@
 """The board in other words: the one-line description printed on it, and OpenCV's equivalent
-board object. Functions of :class:`~artcal_ros.core.board.Board` (its methods call them)."""
+board object. Functions of a :class:`~artcal_ros.core.board.Board` (its methods call them;
+typed ``Any`` here because ``board`` imports this module)."""
 
 from __future__ import annotations
 
-from typing import TYPE_CHECKING
+from typing import Any
 
 import cv2
 import numpy as np
@@ -11,11 +12,8 @@ import numpy as np
 from artcal_ros.core.boards.aprilgrid import describe as aprilgrid_describe
 from artcal_ros.core.errors import BoardError
 
-if TYPE_CHECKING:
-    from artcal_ros.core.board import Board
 
-
-def cv_board(board: Board) -> cv2.aruco.Board:
+def cv_board(board: Any) -> cv2.aruco.Board:
     """The equivalent OpenCV board: ``GridBoard``, ``CharucoBoard``, or a general ``Board``
     for an aprilgrid (same ids and object points); BoardError for a chessboard, which OpenCV
     has no class for."""
@@ -35,7 +33,7 @@ def cv_board(board: Board) -> cv2.aruco.Board:
                                board.ids.astype(np.int32))
 
 
-def describe(board: Board) -> str:
+def describe(board: Any) -> str:
     """One line stating the board's parameters (printed on the board's margin)."""
     w, h = board.size_m
     size = f"({w * 1000:g} x {h * 1000:g} mm)"
