@@ -5,7 +5,6 @@ calibration against the true camera."""
 from __future__ import annotations
 
 import json
-import time
 from functools import cache
 from pathlib import Path
 
@@ -236,30 +235,15 @@ def test_bad_kalibr_target_files_say_what_is_wrong(tmp_path: Path, text: str,
     assert message.split(":")[0] in err and "Traceback" not in err
 
 
-def test_live_collection_and_overlay_take_aprilgrid_views(tmp_path: Path) -> None:
+
+def test_overlay_draws_aprilgrid_detections() -> None:
+    """(The live collection of aprilgrid views: test_boards_cli.py.)"""
     from artcal_ros.core.coverage import CoverageConfig, ViewCollector
-    from artcal_ros.core.live import LiveDetection
     from artcal_ros.core.overlay import render_overlay
 
-    cam = Camera.preset("webcam")
-    truth_path = write_dataset(APRIL, cam, tmp_path / "d", frames=4, seed=9,
-                               partial_fraction=0.0)
-    frames = [cv2.imread(str(tmp_path / "d" / f.file), cv2.IMREAD_GRAYSCALE)
-              for f in load_truth(truth_path).frames if f.file]
+    view = _views(6, 0.0, 3)[0]
     collector = ViewCollector(APRIL, CoverageConfig(min_views=2))
-    live = LiveDetection(APRIL, Detector(APRIL).detect, collector)
-    try:
-        for image in frames:
-            live.offer(image)
-            deadline = time.monotonic() + 20
-            while live.counts().measured == 0 and time.monotonic() < deadline:
-                time.sleep(0.02)
-            time.sleep(0.25)   # the newest frame is re-measured at most every refresh_s
-    finally:
-        live.stop(5.0)
-    assert len(collector.views) >= 2
-    assert all(len(v.ids) >= 8 for v in collector.views)
-    dets = Detector(APRIL).detect(frames[0])
-    drawn = render_overlay(frames[0], dets, collector.counts(), collector.readiness())
-    assert drawn.shape == (*frames[0].shape, 3)
-    assert np.any(drawn[..., 1] != drawn[..., 0])   # something was drawn in colour
+    dets = Detector(APRIL).detect(view.image)
+    drawn = render_overlay(view.image, dets, collector.counts(), collector.readiness())
+    assert drawn.shape == (*view.image.shape, 3)
+    assert np.any(drawn[..., 1] != drawn[..., 0])   # markers drawn in colour
