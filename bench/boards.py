@@ -22,10 +22,18 @@ vignetting, a 4,000 e- well with 6 e- read noise).
    with that shift removed.
 3. Chessboards with tiny squares (4.5 to 6 px in the image, whole board in view, tilted up
    to 45 degrees, clean light): share of frames found by each method.
-4. Calibration from each target: 20 realistic whole-board views per camera of a marker grid
-   (9 x 6 markers of 30 mm, 10 mm gaps), the chessboard and a 10 x 7 ChArUco board (40 mm
-   squares, 30 mm markers), boards of about the same size, at poses drawn with the same
-   seed; projection difference RMS against the true camera (plumb_bob k1 k2 p1 p2).
+4. AprilGrid (Kalibr's 6 x 6 tag36h11 grid of 88 mm tags, spacing 0.3), half the views
+   partial: tags found against tags wholly in view, wrong ids (a tag more than a quarter of
+   its side from the true tag of its id), tags with a corner more than 1 px off, and corner
+   RMS over all tags found with the right id, for artcal_ros and OpenCV's ``ArucoDetector``
+   (DICT_APRILTAG_36h11, SUBPIX refinement) with its default ``markerBorderBits`` 1 and with
+   2, Kalibr's printed border. OpenCV's corners are matched to the nearest true corner of
+   the same tag (its corner order for this print is its own).
+5. Calibration from each target: 20 realistic whole-board views per camera of a marker grid
+   (9 x 6 markers of 30 mm, 10 mm gaps), the chessboard, a 10 x 7 ChArUco board (40 mm
+   squares, 30 mm markers) and a 9 x 6 AprilGrid (30 mm tags, spacing 0.33), boards of
+   about the same size, at poses drawn with the same seed; projection difference RMS
+   against the true camera (plumb_bob k1 k2 p1 p2).
 
 Full run: 20 views a case (about 25 minutes on a loaded 2-core machine); --quick: 6.
 """
@@ -51,6 +59,8 @@ CONDITIONS = {
 }
 CHESS = Board(board_type="chessboard", cols=9, rows=6, square_length=0.04)
 CHARUCO = Board(board_type="charuco", cols=7, rows=5, square_length=0.05, marker_length=0.037)
+APRILGRID = Board(board_type="aprilgrid", cols=6, rows=6, marker_length=0.088,
+                  marker_separation=0.0264)
 _SUBPIX = (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 0.01)
 
 
@@ -130,6 +140,58 @@ def charuco(camera: str, condition: str, views: int, seed: int) -> dict[str, str
             "wrong ids ours / CharucoDetector": f"{wrong_ours} / {wrong_cv}"}
 
 
+def _aruco_36h11(border_bits: int) -> cv2.aruco.ArucoDetector:
+    params = cv2.aruco.DetectorParameters()
+    params.markerBorderBits = border_bits
+    params.cornerRefinementMethod = cv2.aruco.CORNER_REFINE_SUBPIX
+    dictionary = cv2.aruco.getPredefinedDictionary(cv2.aruco.DICT_APRILTAG_36h11)
+    return cv2.aruco.ArucoDetector(dictionary, params)
+
+
+def aprilgrid(camera: str, condition: str, views: int, seed: int) -> dict[str, str]:
+    """Tags found, wrong ids and corner RMS: artcal_ros against OpenCV's ArucoDetector."""
+    cam = Camera.preset(camera)
+    rng = np.random.default_rng(seed)
+    detector = Detector(APRILGRID)
+    methods = {"ours": None, "OpenCV border 1": _aruco_36h11(1),
+               "OpenCV border 2": _aruco_36h11(2)}
+    found = dict.fromkeys(methods, 0)
+    wrong = dict.fromkeys(methods, 0)
+    off = dict.fromkeys(methods, 0)  # right tag, a corner more than 1 px from the truth
+    errors: dict[str, list[np.ndarray]] = {m: [] for m in methods}
+    visible = 0
+    for r, t in random_poses(APRILGRID, cam, views, rng, partial_fraction=0.5):
+        view = render_view(APRILGRID, cam, r, t, photometry=CONDITIONS[condition], rng=rng)
+        visible += int(view.inside.sum())
+        at = {int(k): j for j, k in enumerate(view.ids)}
+        for name, cv_detector in methods.items():
+            if cv_detector is None:
+                det = detector.detect(view.image)
+                ids, quads = det.ids, det.corners_px
+            else:
+                cv_quads, cv_ids, _ = cv_detector.detectMarkers(view.image)
+                ids = np.zeros(0, int) if cv_ids is None else cv_ids.ravel()
+                quads = np.array(cv_quads).reshape(-1, 4, 2)
+            for k, quad in zip(ids, quads, strict=True):
+                true = view.corners_px[at[int(k)]] if int(k) in at else None
+                side = 0.0 if true is None else float(
+                    np.linalg.norm(true - np.roll(true, 1, axis=0), axis=1).min())
+                if true is None or np.linalg.norm(quad.mean(0) - true.mean(0)) > side / 4:
+                    wrong[name] += 1  # not the tag at that place
+                    continue
+                e = np.linalg.norm(quad[:, None] - true[None], axis=2).min(axis=1)
+                errors[name].append(e)
+                found[name] += 1
+                off[name] += int(e.max() > 1.0)
+    out = {"tags in view": str(visible)}
+    for name in methods:
+        out[f"found {name}"] = str(found[name])
+        out[f"RMS {name}"] = f"{_rms(errors[name]):.4f}"
+        out[f"corners > 1 px {name}"] = str(off[name])
+    out["wrong ids ours / border 1 / border 2"] = " / ".join(str(wrong[m]) for m in methods)
+    return out
+
+
 def small_squares(camera: str, views: int, seed: int) -> dict[str, str]:
     """Frames with the whole board found, squares of about 5.5 px."""
     cam = Camera.preset(camera)
@@ -171,6 +233,8 @@ TARGETS = {
     "chessboard": CHESS,
     "charuco": Board(board_type="charuco", cols=10, rows=7, square_length=0.04,
                      marker_length=0.03),
+    "aprilgrid": Board(board_type="aprilgrid", cols=9, rows=6, marker_length=0.03,
+                       marker_separation=0.01),
 }
 
 
@@ -206,13 +270,15 @@ def main() -> None:
     parser.add_argument("--quick", action="store_true", help="fewer views")
     args = parser.parse_args()
     views = 6 if args.quick else 20
-    chess_rows, charuco_rows = {}, {}
+    chess_rows, charuco_rows, april_rows = {}, {}, {}
     for camera in ("webcam", "hd"):
         for k, condition in enumerate(CONDITIONS):
             chess_rows[f"{camera} {condition}"] = chessboard(camera, condition, views, 101 + k)
             charuco_rows[f"{camera} {condition}"] = charuco(camera, condition, views, 201 + k)
+            april_rows[f"{camera} {condition}"] = aprilgrid(camera, condition, views, 501 + k)
     _table("Chessboard 9x6, whole-board views: frames found, RMS error px", chess_rows)
     _table("ChArUco 7x5, half the views partial", charuco_rows)
+    _table("AprilGrid 6x6, half the views partial: tags, corner RMS px", april_rows)
     _table("Chessboard 9x6, squares of 4.5-6 px: frames found",
            {"webcam clean": small_squares("webcam", views, 401)})
     calib_rows = {camera: calibration(camera, 20, 301 + k)
