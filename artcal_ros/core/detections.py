@@ -22,6 +22,8 @@ class Detections:
         center_sigma_px: (N,) float64, the same for each centre.
         sharpness: a focus measure of the image (larger is sharper; NaN if unknown).
         source: where the image came from (a file name or a bag message), for reports.
+        edge_shift_px: the edge shift measured in this view and removed from the corners
+            (outward from the border positive; NaN when not measured), pixels.
     """
 
     ids: np.ndarray
@@ -32,6 +34,7 @@ class Detections:
     center_sigma_px: np.ndarray = field(default_factory=lambda: np.zeros((0,)))
     sharpness: float = float("nan")
     source: str = ""
+    edge_shift_px: float = float("nan")
 
     def __post_init__(self) -> None:
         n = len(self.ids)
