@@ -61,7 +61,8 @@ class Detections:
         """Only the markers where ``mask`` (bool (N,) or index array) selects."""
         return Detections(self.ids[mask], self.corners_px[mask], self.centers_px[mask],
                           self.image_size, self.corner_sigma_px[mask],
-                          self.center_sigma_px[mask], self.sharpness, self.source)
+                          self.center_sigma_px[mask], self.sharpness, self.source,
+                          self.edge_shift_px)
 
     def to_json(self, file: str | None = None) -> dict[str, Any]:
         """The ``artcal detect --json`` record of this image."""

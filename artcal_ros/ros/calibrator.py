@@ -79,7 +79,7 @@ class CalibratorNode(Node):
         # is refused before that cost.
         from artcal_ros.core.detect import Detector, DetectorConfig
 
-        self.detector = Detector(self.board, DetectorConfig())
+        self.detector = Detector(self.board, DetectorConfig.from_params(self.params))
         # Coverage is counted on the points the solve will use, as the solve counts it.
         self.collector = ViewCollector(
             self.board, CoverageConfig(min_views=int(self.params["min_views"]),
@@ -193,7 +193,8 @@ class CalibratorNode(Node):
             dropped, self.collector.readiness(), self.last_summary,
             self.get_clock().now().to_msg(),
             extra={"frames measured": live.measured, "frames queued": live.queued,
-                   "views refused (queue full)": live.refused}))
+                   "views refused (queue full)": live.refused,
+                   "tone curve": self.detector.tone.text()}))
 
     # --- services -----------------------------------------------------------------
     def _on_calibrate(self, request: Trigger.Request, response: Trigger.Response

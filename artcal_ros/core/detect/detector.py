@@ -32,6 +32,7 @@ Pixel convention: OpenCV's, the center of the top-left pixel is (0, 0).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any
 
@@ -107,6 +108,11 @@ class DetectorConfig:
     min_side_px: float = 6.0
     adaptive_window_max: int = 33
     edge_shift: bool = True
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> DetectorConfig:
+        """The configuration the parameters file asks for (``detector.gamma``)."""
+        return cls(gamma=float(params.get("detector.gamma", 0.0)))
 
     def __post_init__(self) -> None:
         for name, g in (("gamma", self.gamma), ("gamma_16bit", self.gamma_16bit)):
