@@ -129,7 +129,7 @@ class TonePool:
 
     # the pooled estimate stops being probed once it is this well determined
     SETTLED_SIGMA = 0.03
-    SETTLED_SIDES = 120
+    SETTLED_SIDES = 60
 
     def __init__(self, start: ToneCurve | None = None) -> None:
         self.start = start or ToneCurve()
