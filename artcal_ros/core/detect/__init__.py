@@ -7,7 +7,8 @@ rejected) -> ``edges`` (blurred-step edge fit, ``step_model``, with the lens
 given or estimated by ``plumb``; side geometry in ``sides``; the pixels across
 the sides read by ``profiles``) -> ``verify`` -> ``centers``. All of them read
 pixels through ``sampling``; ``patterns`` holds what the board prints, ``lens``
-the lens models. The hot loops are numba kernels (compiled on first use and
+the lens models, ``tone`` the tone curve (estimated from the edge fits), ``edge_shift``
+the per-view edge shift removed from the corners. The hot loops are numba kernels (compiled on first use and
 cached on disk); ``linalg`` has their small solves, ``workers`` the threads the
 model fit runs on (``ARTCAL_THREADS``, default 2).
 
@@ -19,7 +20,7 @@ none inside functions)::
     3  decode   edges   verify
     4  plumb    centers
     5  sides
-    6  step_model   lens   image   patterns   profiles
+    6  step_model   lens   image   patterns   profiles   tone   edge_shift
     7  sampling   linalg   workers
 """
 
