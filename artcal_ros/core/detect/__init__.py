@@ -8,9 +8,9 @@ given or estimated by ``plumb``; side geometry in ``sides``; the pixels across
 the sides read by ``profiles``) -> ``verify`` -> ``centers``. All of them read
 pixels through ``sampling``; ``patterns`` holds what the board prints, ``lens``
 the lens models, ``tone`` the tone curve (estimated from the edge fits), ``edge_shift``
-the per-view edge shift removed from the corners. The hot loops are numba kernels (compiled on first use and
-cached on disk); ``linalg`` has their small solves, ``workers`` the threads the
-model fit runs on (``ARTCAL_THREADS``, default 2).
+the per-view edge shift removed from the corners. The hot loops are numba
+kernels (compiled on first use and cached on disk); ``linalg`` has their small
+solves, ``workers`` the threads the model fit runs on (``ARTCAL_THREADS``, default 2).
 
 Imports run one way, down these layers, never up or sideways (no cycles, also
 none inside functions)::

@@ -142,9 +142,11 @@ class _ToneProbe:
         """The candidate curves' costs on the kept fit's sides, added to the pool."""
         if self.last is None:
             return
-        fit_values, values, sides, n_sides, coef, blur = self.last
-        sides = sides[::max(1, len(sides) // _PROBE_SIDES)]
-        costs = probe_costs(fit_values, values, sides, n_sides, self.curve, coef, blur)
+        fit_values, values, sample_side, sides, n_sides, coef, blur = self.last
+        pick = np.linspace(0, len(sides) - 1, min(len(sides), _PROBE_SIDES))
+        sides = sides[pick.astype(int)]
+        costs = probe_costs(fit_values, values, sample_side, sides, n_sides, self.curve,
+                            coef, blur)
         self.pool.add(costs, int(len(values) * len(sides) / max(n_sides, 1)), len(sides))
         self.last = None
 
@@ -153,10 +155,9 @@ def _differs(a: ToneCurve, b: ToneCurve) -> bool:
     """Two curves far enough apart that the edges are worth fitting again.
 
     (0.12 in gamma moves a sharp edge by about 0.02 px; sRGB and gamma 2.2 differ
-    only in the darkest tenth, where no edge's transition is read.)
+    only in the darkest tenth, where no edge's transition is read, so sRGB counts as
+    its effective gamma 2.2.)
     """
-    if {a.kind, b.kind} == {"srgb", "power"}:
-        return abs(a.gamma - b.gamma) > 0.12
     return abs(a.gamma - b.gamma) > 0.12
 
 

@@ -116,7 +116,8 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         max_profiles: most profiles per side (long sides are sampled sparser).
         lens_pool: evidence about the lens from earlier frames of the same camera
             (used and extended when the lens is estimated here).
-        tone_probe: optional ``tone_probe(fit_values, values, sides, n_sides, coef, blur)``,
+        tone_probe: optional ``tone_probe(fit_values, values, sample_side, sides, n_sides, coef,
+            blur)``,
             called after every pass's fit with every 8th side; the last call is the
             final fit's (see
             :func:`~artcal_ros.core.detect.tone.probe_costs`).
@@ -345,7 +346,7 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         if tone_probe is not None:
             few = np.flatnonzero(used > 0)[::_PILOT_EVERY]
             if len(few):
-                tone_probe(partial_fit(fit, _PROBE_STEPS), values, few, S, coef, fit_blur)
+                tone_probe(partial_fit(fit, _PROBE_STEPS), values, sid, few, S, coef, fit_blur)
         blur = fit_blur
         model.coef = coef
         model.cov = cov
