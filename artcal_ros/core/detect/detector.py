@@ -44,7 +44,7 @@ from artcal_ros.core.camera import CameraModel, HasCamera
 from artcal_ros.core.detect.candidates import CandidateFinder
 from artcal_ros.core.detect.centers import diagonal_centers
 from artcal_ros.core.detect.edge_shift import compensate, marker_growth, view_shift_px
-from artcal_ros.core.detect.edges import EdgeFit, refine_quads, same_edges
+from artcal_ros.core.detect.edges import EdgeFit, ProbeFit, refine_quads, same_edges
 from artcal_ros.core.detect.image import to_gray, to_gray8
 from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool, known_lens
 from artcal_ros.core.detect.patterns import inner_border_cells, outer_neighbours
@@ -125,7 +125,7 @@ class DetectorConfig:
 
 
 # most pilot sides a frame's tone probe re-fits per candidate curve
-_PROBE_SIDES = 24
+_PROBE_SIDES = 16
 
 
 class _ToneProbe:
@@ -133,22 +133,22 @@ class _ToneProbe:
 
     def __init__(self, pool: TonePool, curve: ToneCurve) -> None:
         self.pool, self.curve = pool, curve
-        self.last: tuple[Any, ...] | None = None
+        self.last: ProbeFit | None = None
 
-    def __call__(self, *args: Any) -> None:
-        self.last = args
+    def __call__(self, fit: ProbeFit) -> None:
+        self.last = fit
 
     def commit(self) -> None:
         """The candidate curves' costs on the kept fit's sides, added to the pool."""
         if self.last is None:
             return
-        fit_values, values, sample_side, sides, n_sides, coef, blur = self.last
-        pick = np.linspace(0, len(sides) - 1, min(len(sides), _PROBE_SIDES))
-        sides = sides[pick.astype(int)]
-        costs = probe_costs(fit_values, values, sample_side, sides, n_sides, self.curve,
-                            coef, blur)
-        self.pool.add(costs, int(len(values) * len(sides) / max(n_sides, 1)), len(sides))
-        self.last = None
+        fit, self.last = self.last, None
+        pick = np.linspace(0, len(fit.sides) - 1, min(len(fit.sides), _PROBE_SIDES))
+        sides = fit.sides[pick.astype(int)]
+        fit_values, values = fit.subset(sides)
+        costs = probe_costs(fit_values, values, sides, len(fit.coef), self.curve, fit.coef,
+                            fit.blur)
+        self.pool.add(costs, len(values), len(sides))
 
 
 def _differs(a: ToneCurve, b: ToneCurve) -> bool:

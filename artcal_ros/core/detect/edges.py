@@ -53,7 +53,7 @@ _FIT_TOL_PX = 3e-4
 _PILOT_EVERY = 8
 _PILOT_STEPS = 8
 # a tone-curve probe re-fits the pilot sides from their fit, this many steps per curve
-_PROBE_STEPS = 4
+_PROBE_STEPS = 2
 
 
 @dataclass(frozen=True)
@@ -116,10 +116,8 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         max_profiles: most profiles per side (long sides are sampled sparser).
         lens_pool: evidence about the lens from earlier frames of the same camera
             (used and extended when the lens is estimated here).
-        tone_probe: optional ``tone_probe(fit_values, values, sample_side, sides, n_sides, coef,
-            blur)``,
-            called after every pass's fit with every 8th side; the last call is the
-            final fit's (see
+        tone_probe: optional ``tone_probe(probe_fit)``, called with a :class:`ProbeFit`
+            after every pass's fit; the last call is the final fit's (see
             :func:`~artcal_ros.core.detect.tone.probe_costs`).
 
     Returns:
@@ -346,7 +344,7 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         if tone_probe is not None:
             few = np.flatnonzero(used > 0)[::_PILOT_EVERY]
             if len(few):
-                tone_probe(partial_fit(fit, _PROBE_STEPS), values, sid, few, S, coef, fit_blur)
+                tone_probe(ProbeFit(common, values, few, coef, fit_blur))
         blur = fit_blur
         model.coef = coef
         model.cov = cov
@@ -355,13 +353,47 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
     return fit_blur
 
 
-def partial_fit(fit: Callable[..., Any], iterations: int) -> Callable[..., None]:
-    """``fit`` as ``f(values, **kw)`` with ``iterations`` steps (its result discarded)."""
+# the step model's per-sample inputs (the others are per side)
+_PER_SAMPLE = ("s", "side", "basis", "far", "module_px", "outer", "quiet_px")
 
-    def run(values: np.ndarray, **kw: Any) -> None:
-        fit(values, iterations=iterations, **kw)
 
-    return run
+@dataclass(frozen=True)
+class ProbeFit:
+    """A pass's final step-model fit, kept so a tone probe can re-fit some of its sides.
+
+    Attributes:
+        common: the fit's inputs other than the values (:func:`fit_step_model`'s keywords).
+        values: (N,) the samples' linear values.
+        sides: (F,) int, the sides a probe may re-fit (every 8th fitted side).
+        coef, blur: (S, 3), (S,) the fit.
+    """
+
+    common: dict[str, Any]
+    values: np.ndarray
+    sides: np.ndarray
+    coef: np.ndarray
+    blur: np.ndarray
+
+    def subset(self, sides: np.ndarray) -> tuple[Callable[..., None], np.ndarray]:
+        """``fit_values(values, **kw)`` on only the samples of ``sides``, and those values.
+
+        The re-fits then touch none of the frame's other samples (the fit converts its
+        inputs on every call).
+        """
+        # the samples are ordered by side: each side's are one run
+        side = np.asarray(self.common["side"])
+        sides = np.asarray(sides)
+        lo = np.searchsorted(side, sides)
+        hi = np.searchsorted(side, sides, side="right")
+        keep = np.concatenate([np.arange(a, b) for a, b in zip(lo, hi, strict=True)]
+                              + [np.zeros(0, np.intp)])
+        sub = {k: (v[keep] if k in _PER_SAMPLE and v is not None else v)
+               for k, v in self.common.items()}
+
+        def fit_values(values: np.ndarray, **kw: Any) -> None:
+            fit_step_model(values, iterations=_PROBE_STEPS, **sub, **kw)
+
+        return fit_values, self.values[keep]
 
 
 def _neighbour_lines(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

@@ -7,7 +7,7 @@ the blur in *linear* light, so read through the wrong curve its profile is
 asymmetric (the dark and the light half of the transition disagree) and the
 step model fits it worse. The pilot sides of a frame's edge fit are re-fitted
 through a grid of candidate curves (power laws ``linear = v ** gamma`` from 1
-to 3, and the sRGB curve); each candidate's residual, relative to each side's
+to 2.8, and the sRGB curve); each candidate's residual, relative to each side's
 contrast, is pooled over the frames of one camera (:class:`TonePool`), and the
 best fit is the minimum of a parabola through the pooled costs.
 
@@ -33,7 +33,7 @@ import numpy as np
 __all__ = ["GAMMA_GRID", "ToneCurve", "ToneEstimate", "TonePool", "probe_costs"]
 
 # the power laws every probe re-fits (sRGB is probed as well)
-GAMMA_GRID: tuple[float, ...] = (1.0, 1.4, 1.8, 2.2, 2.6, 3.0)
+GAMMA_GRID: tuple[float, ...] = (1.0, 1.6, 2.2, 2.8)
 _SRGB_A = 0.055
 # the curve used until the images show otherwise, and how strongly they must
 DEFAULT_GAMMA = 2.2
@@ -157,7 +157,7 @@ class TonePool:
 
     # later frames are not probed once this many sides are pooled (the decision of
     # :meth:`estimate` no longer changes: see the module docstring)
-    SETTLED_SIDES = 120
+    SETTLED_SIDES = 96
 
     def __init__(self, start: ToneCurve | None = None) -> None:
         self.start = start or ToneCurve("power", DEFAULT_GAMMA)
@@ -220,31 +220,27 @@ class TonePool:
         return ToneEstimate(fitted if strong else self.start, sigma, True, self.sides, fitted)
 
 
-def probe_costs(fit_values: Callable[..., None], values: np.ndarray, sample_side: np.ndarray,
-                sides: np.ndarray, n_sides: int, current: ToneCurve, coef: np.ndarray,
-                blur: np.ndarray) -> np.ndarray:
+def probe_costs(fit_values: Callable[..., None], values: np.ndarray, sides: np.ndarray,
+                n_sides: int, current: ToneCurve, coef: np.ndarray, blur: np.ndarray
+                ) -> np.ndarray:
     """(C,) step-model costs of every candidate curve on the ``sides`` given.
 
     Args:
         fit_values: ``fit_values(values, coef0=, blur0=, sides=, cost_out=)`` re-fits
             the sides to other sample values (the step model's fit with everything
-            else bound).
-        values: (N,) the samples' linear values read through ``current``.
-        sample_side: (N,) int, the side of each sample.
+            else bound, on the samples of ``sides``).
+        values: (N,) those samples' linear values, read through ``current``.
         sides: (F,) int, the sides to probe.
         n_sides: S, all sides of the fit.
         current: the curve ``values`` were read through.
         coef, blur: (S, 3), (S,) the fit at ``current``, the start of every re-fit.
     """
-    # only the probed sides' samples are read again (the others are not fitted)
-    mine = np.flatnonzero(np.isin(sample_side, sides))
-    encoded = current.to_encoded(values[mine])
+    encoded = current.to_encoded(values)
     out = np.zeros(len(CANDIDATES))
     cost = np.zeros(n_sides)
     for c, curve in enumerate(CANDIDATES):
-        probe = values.copy()
-        probe[mine] = curve.to_linear(encoded)
         cost[:] = 0.0
-        fit_values(probe, coef0=coef, blur0=blur, sides=sides, cost_out=cost)
+        fit_values(curve.to_linear(encoded), coef0=coef, blur0=blur, sides=sides,
+                   cost_out=cost)
         out[c] = float(cost[sides].sum())
     return out
