@@ -27,6 +27,9 @@ from artcal_ros.core.homography import apply_h, homographies
 __all__ = ["MarkerGrowth", "compensate", "marker_growth", "view_shift_px"]
 
 _NEIGHBOURS = ((0, 1), (1, 0), (0, -1), (-1, 0))
+# largest relative misfit of a neighbour's distance to the pitch (an edge shift of a
+# pixel on a 10 px marker is 0.2)
+_NEIGHBOUR_TOLERANCE = 0.25
 
 
 @dataclass(frozen=True)
@@ -80,8 +83,12 @@ def marker_growth(ids: np.ndarray, corners_px: np.ndarray, centers_px: np.ndarra
         q = np.einsum("nij,nj->ni", H_inv[has], np.c_[centers_px[j[has]], np.ones(has.sum())])
         q = q[:, :2] / q[:, 2:]
         d = np.hypot(*(q - own[has]).T)
-        dist_sum[has] += d
-        count[has] += 1
+        # a neighbour by id that is not at one pitch is not a neighbour in the print
+        # (a board configured only for its ids, e.g. ChArUco markers as one long row)
+        near = np.abs(d / pitch - 1.0) < _NEIGHBOUR_TOLERANCE
+        idx = np.flatnonzero(has)[near]
+        dist_sum[idx] += d[near]
+        count[idx] += 1
     with np.errstate(invalid="ignore", divide="ignore"):
         growth = pitch / (dist_sum / count) - 1.0
     sides = np.linalg.norm(np.roll(corners_px, -1, axis=1) - corners_px, axis=2).mean(axis=1)
