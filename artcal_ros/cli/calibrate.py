@@ -33,7 +33,7 @@ from artcal_ros.cli.progress import Progress
 from artcal_ros.cli.skipped import SkippedFrames, read_image_file
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate import CalibrationResult
-from artcal_ros.core.calibrate.board_check import BoardCheck, check_board
+from artcal_ros.core.calibrate.board_check import check_board
 from artcal_ros.core.calibrate.session import detect_views, session_summary, solve_session
 from artcal_ros.core.detect import Detector, DetectorConfig
 from artcal_ros.core.detections import Detections
@@ -244,20 +244,10 @@ def run(args: argparse.Namespace) -> int:
     # The session's time is the solve's; the user waited for the detection too.
     print(session_summary(replace(session, seconds=time.monotonic() - start), long=True))
     print(f"tone curve: {tone.text()}")
-    print(f"board check: {_board_line(check)}")
+    print(f"board check: {check.text()}")
     if skipped.count:
         print(skipped.summary())
     return 0
-
-
-def _board_line(check: BoardCheck) -> str:
-    """One line of the board check for the summary."""
-    if not check.views:
-        return "not measured (too few markers per view)"
-    state = "DIFFERS, see the warning" if check.warning else "matches the configuration"
-    return (f"{state}: separation {check.marker_separation:.4f} m (marker length "
-            f"{check.marker_length:.4f} m, {check.views} views); edge shift "
-            f"{check.edge_shift_px:+.3f} px (median of the views, removed from the corners)")
 
 
 def write_report(directory: Path, result: CalibrationResult, dets: list[Detections],

@@ -41,6 +41,7 @@ from sensor_msgs.srv import SetCameraInfo
 from std_srvs.srv import Trigger
 
 from artcal_ros.core.board import Board
+from artcal_ros.core.calibrate.board_check import check_board
 from artcal_ros.core.calibrate.session import SolveOutcome, busy_threads, run_solve
 from artcal_ros.core.camera_info import as_camera_info
 from artcal_ros.core.coverage import CoverageConfig, ViewCollector
@@ -91,6 +92,7 @@ class CalibratorNode(Node):
         self.counters = Counters()
         self.frame_id = "camera"
         self.last_summary = ""
+        self.last_board_check = "not measured (no solve yet)"
         self._solving = threading.Lock()
         self._stopping = threading.Event()
         # Held to publish the heat map and the overlay: the latched heat map follows the
@@ -194,7 +196,8 @@ class CalibratorNode(Node):
             self.get_clock().now().to_msg(),
             extra={"frames measured": live.measured, "frames queued": live.queued,
                    "views refused (queue full)": live.refused,
-                   "tone curve": self.detector.tone.text()}))
+                   "tone curve": self.detector.tone.text(),
+                   "board check": self.last_board_check}))
 
     # --- services -----------------------------------------------------------------
     def _on_calibrate(self, request: Trigger.Request, response: Trigger.Response
@@ -244,6 +247,11 @@ class CalibratorNode(Node):
                                 msgs.header(stamp, self.frame_id))
         self.info_pub.publish(info)
         self.last_summary = outcome.message
+        check = check_board([views[i] for i in outcome.result.views_used], self.board,
+                            outcome.result.camera)
+        self.last_board_check = check.text()
+        if check.warning:
+            self.get_logger().warning(f"board check: {check.warning}")
         if self.params["commit"]:
             return self._commit(info, outcome)
         return outcome

@@ -59,6 +59,15 @@ class BoardCheck:
     views: int
     warning: str
 
+    def text(self) -> str:
+        """One line for a summary or a diagnostic."""
+        if not self.views:
+            return "not measured (too few markers per view)"
+        state = "DIFFERS, see the warning" if self.warning else "matches the configuration"
+        return (f"{state}: separation {self.marker_separation:.4f} m (marker length "
+                f"{self.marker_length:.4f} m, {self.views} views); edge shift "
+                f"{self.edge_shift_px:+.3f} px (median of the views, removed from the corners)")
+
     def as_dict(self) -> dict[str, object]:
         """JSON-ready (``marker_length``, ``marker_separation``, ``warning`` and the rest)."""
         def num(v: float, digits: int) -> float | None:
