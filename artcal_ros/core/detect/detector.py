@@ -43,7 +43,12 @@ from artcal_ros.core.board import Board
 from artcal_ros.core.camera import CameraModel, HasCamera
 from artcal_ros.core.detect.candidates import CandidateFinder
 from artcal_ros.core.detect.centers import diagonal_centers
-from artcal_ros.core.detect.edge_shift import compensate, marker_growth, view_shift_px
+from artcal_ros.core.detect.edge_shift import (
+    MarkerGrowth,
+    compensate,
+    marker_growth,
+    view_shift_px,
+)
 from artcal_ros.core.detect.edges import EdgeFit, ProbeFit, refine_quads, same_edges
 from artcal_ros.core.detect.image import to_gray, to_gray8
 from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool, known_lens
@@ -251,11 +256,25 @@ class Detector:
             q = lens.undistort(corners.reshape(-1, 2)).reshape(m, 4, 2)
             c = lens.undistort(centers)
         growth = marker_growth(ids, q, c, self.board)
-        shift, shift_sd = view_shift_px(growth, self.board)
-        if not np.isfinite(shift_sd):
+        # light spreading into dark grows a white-bordered marker and shrinks a black one:
+        # on a mixed board each polarity has its own shift (reported: the black ones')
+        inverted = np.array([self.board.is_inverted(int(i)) for i in ids], bool)
+        shift = float("nan")
+        q = q.copy()
+        for group in (~inverted, inverted):
+            if not group.any():
+                continue
+            part = MarkerGrowth(growth.growth[group], growth.px_per_m[group],
+                                growth.homography[group])
+            d, d_sd = view_shift_px(part, self.board)
+            if not np.isfinite(d_sd):
+                continue
+            # the quads shrink about their centres: the diagonals' crossing stays
+            q[group] = compensate(q[group], part, d, self.board)
+            if not np.isfinite(shift):
+                shift = d
+        if not np.isfinite(shift):
             return corners, float("nan")
-        # the quads shrink about their centres: the diagonals' crossing stays
-        q = compensate(q, growth, shift, self.board)
         if lens is not None:
             q = lens.distort(q.reshape(-1, 2)).reshape(m, 4, 2)
         return q, shift
