@@ -136,10 +136,11 @@ class ToneEstimate:
         """One line, e.g. ``gamma 2.18 +- 0.03 (estimated from 412 edges)``."""
         if not self.estimated:
             return f"{self.curve.name} (given)"
-        if not np.isfinite(self.sigma):
+        if self.sides == 0:
             return f"{self.curve.name} (assumed: no edges yet)"
         fitted = self.fitted or self.curve
-        pm = "" if fitted.kind == "srgb" else f" +- {self.sigma:.2f}"
+        pm = "" if fitted.kind == "srgb" or not np.isfinite(self.sigma) else (
+            f" +- {self.sigma:.2f}")
         if fitted == self.curve:
             return f"{fitted.name}{pm} (estimated from {self.sides} edges)"
         return (f"{self.curve.name} (best fit {fitted.name}{pm} from {self.sides} edges: "
@@ -211,7 +212,10 @@ class TonePool:
         stat = float(np.sqrt(var / c2)) if c2 > 0 else float("inf")
         sigma = float(np.hypot(stat, _SYSTEMATIC_SIGMA))
         fitted = ToneCurve("power", round(gamma, 3))
-        far = abs(gamma - self.start.gamma) > SWITCH_GAMMA or self.start.kind == "srgb"
+        # a best fit at the top of the grid, or without a minimum, identifies no curve
+        # (defocused frames fit the steepest candidate best: the blur model's misfit)
+        far = ((abs(gamma - self.start.gamma) > SWITCH_GAMMA or self.start.kind == "srgb")
+               and np.isfinite(stat) and gamma < grid[-1])
         if self.costs[n_pow] < best:
             fitted, best, far = CANDIDATES[n_pow], float(self.costs[n_pow]), True
         start = self._start_cost()
