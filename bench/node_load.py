@@ -641,9 +641,9 @@ def _f(value: float | None, fmt: str = ".2f", suffix: str = "") -> str:
 def frames_table(results: Sequence[LoadResult]) -> str:
     """Markdown: frames sent, seen, processed, dropped, broken, lost, overlays."""
     lines = ["| frames | transport | rate Hz (sent) | s | sent | seen | processed "
-             "| dropped (busy) | broken | lost before the node | overlays reliable "
-             "| overlays best effort |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "| dropped (busy) | broken | lost before the node | measured precisely | views "
+             "| overlays reliable | overlays best effort |",
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         s = r.spec
         seen = r.count("frames seen")
@@ -654,7 +654,8 @@ def frames_table(results: Sequence[LoadResult]) -> str:
             f"| {r.transport} | {s.rate_hz:g} ({_f(achieved, '.1f')}) | {s.seconds:g} | {r.sent} "
             f"| {_f(seen, 'd')} | {_f(r.count('frames processed'), 'd')} "
             f"| {_f(r.count('frames dropped (busy)'), 'd')} | {_f(r.count('frames broken'), 'd')} "
-            f"| {_f(lost, 'd')} | {r.overlays_reliable} | {r.overlays_best_effort} |")
+            f"| {_f(lost, 'd')} | {_f(r.count('frames measured'), 'd')} "
+            f"| {_f(r.count('views'), 'd')} | {r.overlays_reliable} | {r.overlays_best_effort} |")
     return "\n".join(lines)
 
 

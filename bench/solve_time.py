@@ -299,7 +299,7 @@ STAGES: tuple[tuple[str, tuple[tuple[str, str], ...]], ...] = (
                                            ("views.py", "check_views"),
                                            ("pipeline.py", "_layout_check"))),
     ("selection (select_views)", (("views.py", "select_views"),)),
-    ("the solve (3 OpenCV stages + weighted LM, centre passes, outlier rounds)",
+    ("the solve (2 OpenCV stages + weighted LM, centre passes, outlier rounds)",
      (("solve.py", "solve"), ("solve.py", "residuals"), ("pipeline.py", "_reject"),
       ("views.py", "lens_corrected_centers"))),
     ("cross-validation (5 folds)", (("quality.py", "cross_validate"),)),
@@ -358,8 +358,9 @@ def profile_case(preset: str, points: str, views: int, max_views: int, *,
     # Within the cross-validation: the folds' solves and the held-out views' poses.
     parts = [("  of which the folds' LM solves (bundle_adjust)",
               called_from("lm.py", "bundle_adjust", "cross_validate")),
-             ("  of which the held-out views' poses (estimate_pose)",
-              called_from("model.py", "estimate_pose", "cross_validate"))]
+             ("  of which the held-out views' poses (refine_pose, estimate_pose)",
+              called_from("model.py", "refine_pose", "cross_validate")
+              + called_from("model.py", "estimate_pose", "cross_validate"))]
     own = sorted(table.items(), key=lambda kv: -kv[1][2])[:top]
     top_rows = [(f"{Path(k[0]).name}:{k[1]}({k[2]})" if k[1] else k[2], int(v[1]),
                  float(v[2]), float(v[3])) for k, v in own]

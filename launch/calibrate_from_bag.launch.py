@@ -1,7 +1,7 @@
 """Calibrate from a recording: the replay node plays a bag into the calibrator node.
 
     ros2 launch artcal_ros calibrate_from_bag.launch.py bag:=/path/to/bag \
-        image_topic:=/camera/image_raw rate:=0.5
+        image_topic:=/camera/image_raw rate:=1.0
 
 then, when the overlay says it is ready:
 
@@ -26,9 +26,9 @@ def generate_launch_description() -> LaunchDescription:
         DeclareLaunchArgument("bag", description="rosbag2 MCAP directory or .mcap file"),
         DeclareLaunchArgument("image_topic", default_value="/camera/image_raw",
                               description="the recorded sensor_msgs/Image topic"),
-        DeclareLaunchArgument("rate", default_value="0.5",
-                              description="playback speed; the calibrator keeps the newest "
-                                          "frame only, so slower plays more views"),
+        DeclareLaunchArgument("rate", default_value="1.0",
+                              description="playback speed (1.0: as recorded; the "
+                                          "calibrator tracks every frame it receives)"),
         DeclareLaunchArgument("loop", default_value="false",
                               description="play the bag again and again"),
         DeclareLaunchArgument(

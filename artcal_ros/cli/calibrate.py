@@ -4,6 +4,7 @@
 
     artcal calibrate IMAGE... --params P [--set KEY=VALUE]... --output camera.yaml [--report DIR]
     artcal calibrate --bag BAG [--topic T] --params P --output camera.yaml [--report DIR]
+    artcal calibrate IMAGE... --size 8x6 --square 0.108 --output camera.yaml   # a chessboard
 
 The solve options are the parameters file's (``camera_model``, ``points``, ``max_views``,
 ``calibrate.*``), as for the calibrator node; the detection, solve, write and summary are
@@ -28,7 +29,7 @@ from typing import Any
 
 import numpy as np
 
-from artcal_ros.cli.common import add_params_arguments, params_from_args
+from artcal_ros.cli.common import add_params_arguments, chessboard_overrides, params_from_args
 from artcal_ros.cli.progress import Progress
 from artcal_ros.cli.skipped import SkippedFrames, read_image_file
 from artcal_ros.core.board import Board
@@ -65,6 +66,12 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--time-budget", type=float, default=40.0, metavar="S",
                         help="from a bag, space the frames so that reading and detecting "
                              "take about S seconds (default 40; 0 = no limit)")
+    parser.add_argument("--size", metavar="COLSxROWS", default=None,
+                        help="a chessboard of COLS x ROWS inner corners, as camera_calibration's "
+                             "--size 8x6 (sets board.type chessboard, board.cols, board.rows)")
+    parser.add_argument("--square", type=float, default=None, metavar="METRES",
+                        help="with --size: the chessboard's square side in metres, as "
+                             "camera_calibration's --square 0.108 (board.square_length)")
     parser.add_argument("--k3", action="store_true",
                         help="deprecated: the same as --set calibrate.k_coefficients=3 "
                              "(plumb_bob: also estimate k3, for strong wide-angle distortion)")
@@ -196,7 +203,8 @@ def _k3_alias(args: argparse.Namespace, params: dict[str, Any]) -> dict[str, Any
 
 def run(args: argparse.Namespace) -> int:
     """Run the verb; see the module docstring for the exit status."""
-    params = _k3_alias(args, params_from_args(args))
+    params = _k3_alias(args, params_from_args(args, chessboard_overrides(args.size,
+                                                                         args.square)))
     board = Board.from_params(params)
     if bool(args.images) == bool(args.bag):
         raise ParameterError("give either image files or --bag BAG (not both, not neither)")

@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from artcal_ros.core.errors import ParameterError
 from artcal_ros.core.params import ParamValue, load_params, parse_override
 
 
@@ -16,7 +17,45 @@ def add_params_arguments(parser: argparse.ArgumentParser) -> None:
                         help="override one parameter, e.g. --set board.cols=10 (repeatable)")
 
 
-def params_from_args(args: argparse.Namespace) -> dict[str, ParamValue]:
-    """Parameters from ``--params`` with the ``--set`` overrides applied (validated)."""
+def params_from_args(args: argparse.Namespace,
+                     extra: dict[str, Any] | None = None) -> dict[str, ParamValue]:
+    """Parameters from ``--params`` with the ``--set`` overrides applied (validated).
+
+    Args:
+        extra: further overrides (from a verb's own options); a ``--set`` of the same
+            parameter with another value is refused.
+    """
     overrides: dict[str, Any] = dict(parse_override(s) for s in args.set)
+    for key, value in (extra or {}).items():
+        if key in overrides and overrides[key] != value:
+            raise ParameterError(f"--set {key}={overrides[key]} contradicts {value!r} given "
+                                 "by the command's own options; give one of them")
+        overrides[key] = value
     return load_params(args.params, overrides)
+
+
+def chessboard_overrides(size: str | None, square: float | None) -> dict[str, Any]:
+    """camera_calibration's ``--size COLSxROWS --square METRES`` as ``board.*`` parameters.
+
+    ``--size 8x6`` is a chessboard of 8 x 6 inner corners (board.type chessboard,
+    board.cols 8, board.rows 6); ``--square 0.108`` its square side in metres
+    (board.square_length).
+    """
+    out: dict[str, Any] = {}
+    if size is not None:
+        parts = size.lower().split("x")
+        if len(parts) != 2 or not all(p.strip().isdigit() for p in parts):
+            raise ParameterError(f"--size {size!r}: expected COLSxROWS of inner corners, "
+                                 "e.g. --size 8x6")
+        cols, rows = (int(p) for p in parts)
+        if cols < 2 or rows < 2:
+            raise ParameterError(f"--size {size}: a chessboard needs at least 2x2 inner corners")
+        out.update({"board.type": "chessboard", "board.cols": cols, "board.rows": rows})
+    if square is not None:
+        if not square > 0:
+            raise ParameterError(f"--square {square}: must be > 0 (metres)")
+        if size is None:
+            raise ParameterError("--square needs --size (camera_calibration's chessboard); "
+                                 "for other boards use --set board.square_length=...")
+        out["board.square_length"] = float(square)
+    return out

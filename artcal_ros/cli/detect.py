@@ -1,4 +1,4 @@
-"""``artcal detect``: find the board's markers in images; write corners and centres as JSON.
+"""``artcal detect``: find the board's markers and points in images; write them as JSON.
 
     artcal detect frames/*.png --params config/calibrator.yaml --json detections.json
     artcal detect img.png --set board.polarity=mixed --json out.json --overlay overlays/
@@ -6,8 +6,10 @@
 The JSON file is ``{"images": [{"file", "width", "height", "markers": [{"id",
 "corners": [[x, y] x 4], "center": [x, y]}]}]}`` in OpenCV pixel coordinates
 (the centre of the top-left pixel is (0, 0)); corners run TL, TR, BR, BL on the
-board. ``--overlay DIR`` writes one PNG per image with each marker's quad, id,
-corners and centre drawn on it.
+board. Chessboard and ChArUco boards add ``"points": [{"id", "xy": [x, y]}]`` per image,
+``id`` the point's index in the board's object points (OpenCV's charuco corner ids,
+``findChessboardCorners`` order). ``--overlay DIR`` writes one PNG per image with each
+marker's quad, id, corners and centre, and each point with its id, drawn on it.
 """
 
 from __future__ import annotations
@@ -69,6 +71,12 @@ def draw_detections(image: np.ndarray, dets: Detections) -> np.ndarray:
                        cv2.MARKER_CROSS, 6 * thick, thick)
         cv2.putText(out, str(int(marker_id)), (int(quad[0, 0]) + 2, int(quad[0, 1]) - 3),
                     cv2.FONT_HERSHEY_SIMPLEX, 0.35 * thick, (0, 120, 255), thick, cv2.LINE_AA)
+    for point_id, xy in zip(dets.point_ids, dets.points_px, strict=True):
+        p = np.round(xy * scale).astype(np.int32)
+        cv2.circle(out, (int(p[0]), int(p[1])), int(3 * scale), (255, 0, 255), thick,
+                   cv2.LINE_AA, shift)
+        cv2.putText(out, str(int(point_id)), (int(xy[0]) + 4, int(xy[1]) + 12),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.3 * thick, (255, 0, 255), thick, cv2.LINE_AA)
     return out
 
 
@@ -94,6 +102,7 @@ def run(args: argparse.Namespace) -> int:
     records: list[dict[str, Any]] = []
     skipped = SkippedFrames()
     total = 0
+    points = 0
     for path in Progress(args.images, label="detect",
                          enabled=not args.quiet and len(args.images) > 1):
         try:
@@ -102,8 +111,9 @@ def run(args: argparse.Namespace) -> int:
             skipped.add(e)
             continue
         dets = detector.detect(image, source=path)
-        records.append(dets.to_json(file=path))
+        records.append(dets.to_json(file=path, with_points=board.has_points))
         total += len(dets)
+        points += len(dets.point_ids)
         if overlay_dir is not None:
             name = overlay_dir / (Path(path).stem + ".png")
             if not cv2.imwrite(str(name), draw_detections(image, dets)):
@@ -116,6 +126,9 @@ def run(args: argparse.Namespace) -> int:
         os.replace(tmp, out_json)
     except OSError as e:
         raise ParameterError(f"--json {args.json}: cannot write it: {e.strerror or e}") from None
-    line = f"wrote {args.json}: {total} markers in {len(records)} image(s)"
+    found = f"{total} markers"
+    if board.has_points:
+        found = f"{points} points" + (f" and {total} markers" if board.n_markers else "")
+    line = f"wrote {args.json}: {found} in {len(records)} image(s)"
     print(line + (f"; {skipped.summary()}" if skipped.count else ""))
     return 0

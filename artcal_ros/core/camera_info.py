@@ -153,7 +153,9 @@ def write_camera_info_yaml(path: str | os.PathLike[str],
 
     The text is built and checked first, written to a temporary file in the same
     directory, flushed to disk and renamed over ``path``: a reader never sees a partial
-    file, and a failure leaves any existing file untouched.
+    file, a kill at any moment leaves the old file or the new one (and at worst a stray
+    ``.<name>.*.tmp`` beside it), and a failure (no permission, a full disk) leaves any
+    existing file untouched and names the path and the reason.
 
     Args:
         path: the file to write (parent directories are created).
@@ -170,6 +172,12 @@ def write_camera_info_yaml(path: str | os.PathLike[str],
     """
     text = camera_info_yaml(calibration, camera_name)
     target = Path(path).expanduser()
+    blocking = next((p for p in reversed(target.parents) if p.exists() and not p.is_dir()),
+                    None)
+    if blocking is not None:
+        raise ArtcalError(f"cannot write {target}: {blocking} is a file, not a directory")
+    if target.is_dir():
+        raise ArtcalError(f"cannot write {target}: it is a directory; give a file name")
     try:
         target.parent.mkdir(parents=True, exist_ok=True)
         fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp",

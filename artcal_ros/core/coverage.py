@@ -140,20 +140,32 @@ def view_geometry(object_points: np.ndarray, image_points: np.ndarray,
     return ViewGeometry(normal, log_distance, center, grid_cells(img, image_size))
 
 
+def point_correspondences(dets: Detections, board: Board) -> tuple[np.ndarray, np.ndarray]:
+    """(point ids (M,), image points (M, 2) pixels) of a view's finite points on the board."""
+    pids = dets.point_ids
+    ok = (pids >= 0) & (pids < len(board.point_ids)) & np.all(np.isfinite(dets.points_px), axis=1)
+    return pids[ok], dets.points_px[ok]
+
+
 def solve_points(dets: Detections, board: Board, points: str) -> tuple[np.ndarray, np.ndarray]:
     """The board and image points a solve takes from one view (as ``views.view_points``).
 
     Args:
         dets: the view's markers.
         board: the board (ids not on it are ignored).
-        points: ``centers`` (one point per marker, needing its corners too) or ``corners``.
+        points: ``centers`` (one point per marker, needing its corners too) or ``corners``;
+            a board with points (chessboard, charuco) gives its points (a ChArUco view
+            tracked without its points: its markers).
 
     Returns:
         (object_points (N, 3) metres, image_points (N, 2) pixels).
     """
     if points not in POINTS_MODES:
         raise ValueError(f"points mode {points!r} is not one of {', '.join(POINTS_MODES)}")
-    keep = np.array([board.has_id(int(i)) for i in dets.ids], dtype=bool).reshape(-1)
+    if board.has_points and (len(dets.point_ids) or not board.n_markers):
+        pids, pts = point_correspondences(dets, board)
+        return board.object_points(pids), pts
+    keep = board.has_ids(dets.ids)
     ids, corners = dets.ids[keep], dets.corners_px[keep]
     has_corners = np.all(np.isfinite(corners), axis=(1, 2))
     if points == "centers":
@@ -308,15 +320,38 @@ class ViewCollector:
         others = [*zip(reversed(self._views), reversed(self._geometry), strict=True),
                   *self._pending.values()]
         for old, old_geometry in others:
-            shared, i_new, i_old = np.intersect1d(dets.ids, old.ids, return_indices=True)
-            if len(shared) < 0.5 * len(dets):
+            ids, pos = self._features(dets)
+            old_ids, old_pos = self._features(old)
+            shared, i_new, i_old = np.intersect1d(ids, old_ids, return_indices=True)
+            if len(shared) < 0.5 * len(ids):
                 continue
-            moved = np.linalg.norm(dets.centers_px[i_new] - old.centers_px[i_old], axis=1)
+            moved = np.linalg.norm(pos[i_new] - old_pos[i_old], axis=1)
             turned = max(abs(geometry.tilt_x_deg - old_geometry.tilt_x_deg),
                          abs(geometry.tilt_y_deg - old_geometry.tilt_y_deg))
             if moved.mean() <= limit and turned <= turn:
                 return False
         return True
+
+    def _features(self, dets: Detections) -> tuple[np.ndarray, np.ndarray]:
+        """(ids, image positions) of what identifies a view: its marker centres (marker
+        grids, and ChArUco boards, whose tracked views have markers only), else points."""
+        if self.board.n_markers:
+            return dets.ids, dets.centers_px
+        return dets.point_ids, dets.points_px
+
+    def _too_few(self, dets: Detections, *, tracked: bool = False) -> bool:
+        # a kept view of a point board needs its points; a tracked one (reserve) has the
+        # markers only, which stand for the points until the precise detection comes
+        if self.board.has_points and not (tracked and self.board.n_markers):
+            return len(dets.point_ids) < max(self.config.min_markers, 8)
+        return len(dets) < self.config.min_markers
+
+    def _geometry_of(self, dets: Detections, cfg: CoverageConfig
+                     ) -> tuple[tuple[int, int], ViewGeometry]:
+        # The pose costs a PnP solve: callers run it outside the lock (it depends on this
+        # view only).
+        size = (int(dets.image_size[0]), int(dets.image_size[1]))
+        return size, view_geometry(*solve_points(dets, self.board, cfg.points), size)
 
     def add(self, dets: Detections) -> bool:
         """Offer one view; return whether it was kept (enough markers, new, room left).
@@ -325,11 +360,9 @@ class ViewCollector:
         since views of different sizes cannot be solved together.
         """
         cfg = self.config
-        if len(dets) < cfg.min_markers:
+        if self._too_few(dets):
             return False
-        size = (int(dets.image_size[0]), int(dets.image_size[1]))
-        # The pose costs a PnP solve: outside the lock, it depends on this view only.
-        geometry = view_geometry(*solve_points(dets, self.board, cfg.points), size)
+        size, geometry = self._geometry_of(dets, cfg)
         with self._lock:
             # The size test, the reset and the append are one step: a reset or a view of
             # another size coming in between must not leave views of two sizes together.
@@ -353,10 +386,9 @@ class ViewCollector:
         novelty only: not in :meth:`snapshot`, the readiness or the coverage.
         """
         cfg = self.config
-        if len(dets) < cfg.min_markers:
+        if self._too_few(dets, tracked=True):
             return None
-        size = (int(dets.image_size[0]), int(dets.image_size[1]))
-        geometry = view_geometry(*solve_points(dets, self.board, cfg.points), size)
+        _, geometry = self._geometry_of(dets, cfg)
         with self._lock:
             if len(self._views) + len(self._pending) >= cfg.max_stored \
                     or not self._is_new(dets, geometry, cfg):

@@ -76,7 +76,7 @@ class LiveCounts:
 
     Attributes:
         measured: frames detected precisely.
-        queued: frames waiting now.
+        queued: new views waiting for (or in) precise detection now.
         refused: new views not held because the queue was full.
     """
 
@@ -90,6 +90,7 @@ class _Job:
     index: int
     image: np.ndarray
     ticket: int | None      # a held view, or None for a refresh
+    generation: int         # the reset count when it was queued
 
 
 class LiveDetection:
@@ -101,14 +102,14 @@ class LiveDetection:
         collector: where views go.
         config: bounds, see :class:`LiveConfig`.
         on_measured: called on the background thread after each precise detection with
-            the detections and whether they added a view.
+            the image, the detections and whether they added a view.
         on_error: called on the background thread with an exception detection raised (the
             frame is skipped, its held view released).
     """
 
     def __init__(self, board: Board, detect: Callable[[np.ndarray], Detections],
                  collector: ViewCollector, config: LiveConfig | None = None, *,
-                 on_measured: Callable[[Detections, bool], None] | None = None,
+                 on_measured: Callable[[np.ndarray, Detections, bool], None] | None = None,
                  on_error: Callable[[BaseException], None] | None = None) -> None:
         self.config = config or LiveConfig()
         self.tracker = MarkerTracker(board)
@@ -121,10 +122,11 @@ class LiveDetection:
         self._queued_bytes = 0
         self._latest: _Job | None = None
         self._last_refresh = -np.inf
-        self._busy = False
         self._stopping = False
         self._measured = 0
         self._refused = 0
+        self._generation = 0  # counts resets: a detection started before one adds nothing
+        self._commit = threading.Lock()
         self._thread = threading.Thread(target=self._run, name="detect-precise", daemon=True)
         self._thread.start()
 
@@ -144,12 +146,12 @@ class LiveDetection:
                 cfg = self.config
                 if (len(self._queue) < cfg.max_queued
                         and self._queued_bytes + image.nbytes <= cfg.max_queued_bytes):
-                    self._queue.append(_Job(index, image, ticket))
+                    self._queue.append(_Job(index, image, ticket, self._generation))
                     self._queued_bytes += image.nbytes
                     queued = True
                 else:
                     self._refused += 1
-            self._latest = _Job(index, image, None)
+            self._latest = _Job(index, image, None, self._generation)
             self._cond.notify()
         if ticket is not None and not queued:
             self.collector.release(ticket)
@@ -178,12 +180,10 @@ class LiveDetection:
                     job = self._next_job()
                 if self._stopping or job is None:
                     return
-                self._busy = True
             try:
                 self._measure(job)
             finally:
                 with self._cond:
-                    self._busy = False
                     self._measured += 1
                     self._cond.notify_all()
 
@@ -197,20 +197,27 @@ class LiveDetection:
                 with contextlib.suppress(Exception):
                     self._on_error(e)
             return
-        self.tracker.seed(job.index, dets)
-        if job.ticket is not None:
-            kept = self.collector.settle(job.ticket, dets)
-        else:
-            kept = self.collector.add(dets)
+        # The generation test and the collection's change are one step against reset():
+        # a reset either comes before (this detection is dropped) or clears it after.
+        with self._commit:
+            if job.generation != self._generation:  # measured across a reset
+                if job.ticket is not None:
+                    self.collector.release(job.ticket)
+                return
+            self.tracker.seed(job.index, dets)
+            if job.ticket is not None:
+                kept = self.collector.settle(job.ticket, dets)
+            else:
+                kept = self.collector.add(dets)
         if self._on_measured is not None:
-            self._on_measured(dets, kept)
+            self._on_measured(job.image, dets, kept)
 
     # --- state ---------------------------------------------------------------------
     def counts(self) -> LiveCounts:
         """Frames measured, waiting and refused so far."""
+        pending = self.collector.pending
         with self._cond:
-            return LiveCounts(self._measured, len(self._queue) + (1 if self._busy else 0),
-                              self._refused)
+            return LiveCounts(self._measured, pending, self._refused)
 
     def wait_idle(self, timeout: float, stopping: threading.Event | None = None) -> bool:
         """Wait until no held view waits for its precise detection; whether that came."""
@@ -224,12 +231,16 @@ class LiveDetection:
             return True
 
     def reset(self) -> None:
-        """Drop the queued frames and the tracked markers (the collection is reset apart)."""
-        with self._cond:
+        """Drop the queued frames and the tracked markers (the collection is reset apart).
+
+        A precise detection still running when this is called adds nothing afterwards.
+        """
+        with self._commit, self._cond:
             jobs = list(self._queue)
             self._queue.clear()
             self._queued_bytes = 0
             self._latest = None
+            self._generation += 1
         for job in jobs:
             if job.ticket is not None:
                 self.collector.release(job.ticket)

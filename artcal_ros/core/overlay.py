@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import functools
+
 import cv2
 import numpy as np
 
@@ -38,7 +40,7 @@ def render_overlay(image: np.ndarray, dets: Detections | None, counts: np.ndarra
 
     Args:
         image: (H, W) uint8/uint16 or (H, W, 3) uint8 BGR, the camera frame.
-        dets: markers found in it (None: detection not run or failed).
+        dets: markers and points found in it (None: detection not run or failed).
         counts: (rows, cols) coverage counts over the image (see ViewCollector.counts).
         readiness: the collection's state, printed as text.
         kept: whether this frame was kept as a calibration view (drawn as a green frame).
@@ -49,52 +51,88 @@ def render_overlay(image: np.ndarray, dets: Detections | None, counts: np.ndarra
     Returns:
         (H', W', 3) uint8 BGR, W' = min(W, max_width).
     """
-    out = to_bgr8(image)
-    h, w = out.shape[:2]
+    img = np.asarray(image)
+    h, w = img.shape[:2]
     zoom = 1.0
     if max_width is not None and w > max_width:
+        # shrunk as it comes (grey, 16-bit), before the colour copy is made
         zoom = max_width / w
         size = (int(max_width), max(1, round(h * zoom)))
-        out = cv2.resize(out, size, interpolation=cv2.INTER_AREA)
-        h, w = out.shape[:2]
+        img = cv2.resize(img, size, interpolation=cv2.INTER_AREA)
+    out = to_bgr8(img)
+    h, w = out.shape[:2]
     rows, cols = counts.shape
     # Tint covered cells green: a person sees at a glance where the board has not been.
-    tint = np.zeros_like(out)
-    for r in range(rows):
-        for c in range(cols):
-            if counts[r, c] > 0:
-                x0, x1 = c * w // cols, (c + 1) * w // cols
-                y0, y1 = r * h // rows, (r + 1) * h // rows
-                tint[y0:y1, x0:x1] = _GREEN
-    out = cv2.addWeighted(out, 1.0, tint, 0.25, 0.0)
+    # (A quarter of the green added to the covered cells' green channel, in place.)
+    covered = np.zeros((h, w), np.uint8)
+    for r, c in zip(*np.nonzero(counts > 0), strict=True):
+        covered[r * h // rows:(r + 1) * h // rows, c * w // cols:(c + 1) * w // cols] = 1
+    green = np.ascontiguousarray(out[:, :, 1])
+    cv2.add(green, np.full_like(green, _GREEN[1] // 4), dst=green, mask=covered)
+    out[:, :, 1] = green
     scale = max(0.4, min(w, h) / 900.0)
     thick = max(1, round(scale * 2))
     if dets is not None and len(dets):
         # pixel centres: (0, 0) is the centre of the top-left pixel at either scale
         quads = np.round((dets.corners_px + 0.5) * zoom - 0.5).astype(np.int32)
         cv2.polylines(out, list(quads), True, _GREEN, thick, cv2.LINE_AA)
-        for k, marker_id in enumerate(dets.ids):
+        first = quads[:, 0].tolist()
+        centers = np.round((dets.centers_px + 0.5) * zoom - 0.5).astype(int).tolist()
+        # an id is drawn where it fits inside its marker (smaller ones are unreadable)
+        side = np.linalg.norm(quads[:, 1] - quads[:, 0], axis=1)
+        label_px = 18.0 * scale
+        for k, marker_id in enumerate(dets.ids.tolist()):
             # A red dot on each marker's first (top-left on the board) corner shows orientation.
-            cv2.circle(out, (int(quads[k, 0, 0]), int(quads[k, 0, 1])), thick + 1, _RED, -1)
-            center = (dets.centers_px[k] + 0.5) * zoom - 0.5
-            cv2.putText(out, str(int(marker_id)), (int(center[0]) - 8, int(center[1]) + 4),
-                        cv2.FONT_HERSHEY_SIMPLEX, 0.8 * scale, _YELLOW, thick, cv2.LINE_AA)
+            cv2.circle(out, (first[k][0], first[k][1]), thick + 1, _RED, -1)
+            if side[k] >= label_px * len(str(marker_id)) * 0.6:
+                cv2.putText(out, str(marker_id), (centers[k][0] - 8, centers[k][1] + 4),
+                            cv2.FONT_HERSHEY_SIMPLEX, 0.8 * scale, _YELLOW, thick,
+                            cv2.LINE_8)
+    if dets is not None and len(dets.point_ids):
+        pts = np.round((dets.points_px + 0.5) * zoom - 0.5).astype(np.int32)
+        for p in pts:
+            cv2.circle(out, (int(p[0]), int(p[1])), thick + 2, _RED, thick, cv2.LINE_AA)
     if kept:
         cv2.rectangle(out, (0, 0), (w - 1, h - 1), _GREEN, 3 * thick)
     n = 0 if dets is None else len(dets)
-    lines = [f"markers {n}  views {readiness.views}/{readiness.views_needed}  "
+    found = f"markers {n}"
+    if dets is not None and len(dets.point_ids):
+        found = f"points {len(dets.point_ids)}" + (f"  markers {n}" if n else "")
+    lines = [f"{found}  views {readiness.views}/{readiness.views_needed}  "
              f"coverage {readiness.coverage:.0%}"]
     lines += ["ready to calibrate"] if readiness.ready else \
         [f"missing: {item}" for item in readiness.missing]
-    y = int(24 * scale) + 4
-    for line in lines:
-        colour = _GREEN if readiness.ready else _YELLOW
-        cv2.putText(out, line, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.7 * scale, (0, 0, 0),
-                    thick + 2, cv2.LINE_AA)
-        cv2.putText(out, line, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.7 * scale, colour, thick,
-                    cv2.LINE_AA)
-        y += int(28 * scale) + 2
+    rows_px, cols_px, colour, alpha = _text_block(tuple(lines), readiness.ready, scale, thick, w)
+    inside = rows_px < h
+    r, c, a = rows_px[inside], cols_px[inside], alpha[inside, None]
+    out[r, c] = (out[r, c] * (1.0 - a) + colour[inside] * a).astype(np.uint8)
     return out
+
+
+@functools.lru_cache(maxsize=16)
+def _text_block(lines: tuple[str, ...], ready: bool, scale: float, thick: int, width: int
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """The status lines drawn once (outlined, anti-aliased), as the pixels they cover:
+    rows (P,), columns (P,), colours (P, 3) float and opacities (P,) float. The text
+    changes a few times a minute, the frames 30 times a second."""
+    step = int(28 * scale) + 2
+    hh = int(24 * scale) + 4 + step * len(lines)
+    picture = np.zeros((hh, width, 3), np.uint8)
+    ink = np.zeros((hh, width), np.uint8)
+    y = int(24 * scale) + 4
+    colour = _GREEN if ready else _YELLOW
+    for line in lines:
+        for img, col in ((picture, (0, 0, 0)), (ink, 255)):
+            cv2.putText(img, line, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.7 * scale, col,
+                        thick + 2, cv2.LINE_AA)
+        cv2.putText(picture, line, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.7 * scale, colour,
+                    thick, cv2.LINE_AA)
+        cv2.putText(ink, line, (8, y), cv2.FONT_HERSHEY_SIMPLEX, 0.7 * scale, 255, thick,
+                    cv2.LINE_AA)
+        y += step
+    rows_px, cols_px = np.nonzero(ink)
+    return (rows_px, cols_px, picture[rows_px, cols_px].astype(np.float64),
+            ink[rows_px, cols_px] / 255.0)
 
 
 def render_heat_map(counts: np.ndarray, image_size: tuple[int, int] | None, *,

@@ -17,6 +17,7 @@ from typing import Any
 
 import yaml
 
+from artcal_ros.core.boards import BUILT_TYPES, PLANNED_TYPES
 from artcal_ros.core.camera import MODELS
 from artcal_ros.core.errors import ParameterError
 
@@ -47,6 +48,14 @@ def _a_name(value: Any) -> str | None:
     return None if str(value).strip() else "must not be empty"
 
 
+def _board_type(value: Any) -> str | None:
+    if value in BUILT_TYPES:
+        return None
+    if value in PLANNED_TYPES:
+        return f"is not built yet; {', '.join(PLANNED_TYPES)} are planned"
+    return "is not a board type"
+
+
 def _dictionary(value: Any) -> str | None:
     import cv2
 
@@ -61,15 +70,26 @@ _RANGE_WORDS: dict[Any, str] = {_positive: " > 0", _non_negative: " >= 0"}
 
 
 PARAMETERS: tuple[ParamSpec, ...] = (
-    ParamSpec("board.type", "marker_grid", "Board layout.", choices=("marker_grid",)),
+    ParamSpec("board.type", "marker_grid",
+              "Board layout: marker_grid (self-identifying markers), chessboard "
+              "(camera_calibration's), charuco (OpenCV's CharucoBoard).",
+              check=_board_type, allowed=", ".join(BUILT_TYPES)),
     ParamSpec("board.dictionary", "DICT_6X6_1000",
               "OpenCV predefined ArUco dictionary name of the markers.", check=_dictionary),
-    ParamSpec("board.cols", 19, "Markers per row.", check=_positive),
-    ParamSpec("board.rows", 9, "Markers per column.", check=_positive),
+    ParamSpec("board.cols", 19, "Per row: markers (marker_grid), inner corners (chessboard, "
+              "camera_calibration's --size COLSxROWS), squares (charuco, OpenCV's squaresX).",
+              check=_positive),
+    ParamSpec("board.rows", 9, "Per column: markers (marker_grid), inner corners "
+              "(chessboard), squares (charuco, OpenCV's squaresY).", check=_positive),
     ParamSpec("board.marker_length", 0.06, "Side of a marker's outer black square, metres.",
               check=_positive),
     ParamSpec("board.marker_separation", 0.02, "Gap between neighbouring markers, metres.",
               check=_positive),
+    ParamSpec("board.square_length", 0.08,
+              "Side of a chessboard or charuco square, metres.", check=_positive),
+    ParamSpec("board.legacy_pattern", False,
+              "charuco: OpenCV's legacy layout (before 4.6: a white top-left square on boards "
+              "with an even number of rows; CharucoBoard.setLegacyPattern)."),
     ParamSpec("board.first_id", 0, "Id of the top-left marker; ids run row-major.",
               check=_non_negative),
     ParamSpec("board.polarity", "black",
@@ -115,6 +135,10 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "Width the node's ~/overlay image is scaled down to at most, pixels (a 1080p bgr8 "
               "overlay is 6.2 MB a message, 1.6 MB at 960 px).",
               check=_positive),
+    ParamSpec("resume", False,
+              "true: continue the session saved under ~/.ros/artcal/<camera_name>/ (the "
+              "views collected before a stop, crash or kill); false: start empty (a saved "
+              "session is kept as session.previous.npz once new views are saved)."),
 )
 
 SPECS: dict[str, ParamSpec] = {s.name: s for s in PARAMETERS}
@@ -128,10 +152,31 @@ def _k_coefficients_fit_model(values: Mapping[str, ParamValue]) -> str | None:
                                     int(values["calibrate.k_coefficients"]))
 
 
+def _board_fits(values: Mapping[str, ParamValue]) -> str | None:
+    kind = values["board.type"]
+    if kind == "marker_grid":
+        return None
+    for name in ("board.cols", "board.rows"):
+        if int(values[name]) < 2:
+            what = "inner corners" if kind == "chessboard" else "squares"
+            return (f"parameter '{name}': {values[name]} is too few for a {kind}; "
+                    f"use at least 2 ({what})")
+    if kind == "charuco":
+        ml, sl = float(values["board.marker_length"]), float(values["board.square_length"])
+        if not ml < sl:
+            return (f"parameter 'board.marker_length': {ml} m must be smaller than "
+                    f"board.square_length ({sl} m) on a charuco board")
+        if values["board.polarity"] != "black":
+            return (f"parameter 'board.polarity': {values['board.polarity']!r}; a charuco "
+                    "board prints black markers on white squares: use black")
+    return None
+
+
 # Checks that involve several parameters: each returns the whole complaint (naming the
 # parameter and its allowed values) or None.
 CROSS_CHECKS: tuple[Callable[[Mapping[str, ParamValue]], str | None], ...] = (
     _k_coefficients_fit_model,
+    _board_fits,
 )
 
 

@@ -78,8 +78,8 @@ class PageLayout:
 
     Attributes:
         page_size_mm: (width, height) of the page.
-        board_origin_mm: page position of the board frame's origin (the top-left outer
-            corner of marker ``first_id``).
+        board_origin_mm: page position of the board frame's origin (marker grid: the
+            top-left outer corner of marker ``first_id``; see docs/conventions.md).
         rects_mm: (K, 4) float64 black rectangles (x0, y0, x1, y1), disjoint.
         texts: the footer's text lines.
         scale_bar_mm: (x0, y0, x1, y1) of the 100 mm scale bar's main stroke.
@@ -106,18 +106,11 @@ def board_black_rects_m(board: Board) -> np.ndarray:
     Returns:
         (K, 4) float64 (x0, y0, x1, y1), metres, board frame.
     """
-    n = board.bits + 2
     margin = board.margin_m
-    width, height = board.size_m
-
-    def edges(count: int, extent: float) -> np.ndarray:
-        starts = np.arange(count) * board.pitch
-        modules = (starts[:, None] + np.arange(n + 1) * board.module_length).ravel()
-        tiles = starts[1:] - 0.5 * board.marker_separation
-        e = np.concatenate([modules, tiles, [-margin, extent + margin]])
-        return np.unique(np.round(e, 12))
-
-    xs, ys = edges(board.cols, width), edges(board.rows, height)
+    x0, y0, x1, y1 = board.extent_m
+    lines = board.print_lines()
+    xs = np.unique(np.round(np.concatenate([lines[0], [x0 - margin, x1 + margin]]), 12))
+    ys = np.unique(np.round(np.concatenate([lines[1], [y0 - margin, y1 + margin]]), 12))
     cx, cy = 0.5 * (xs[1:] + xs[:-1]), 0.5 * (ys[1:] + ys[:-1])
     black = ~board.is_white(*np.meshgrid(cx, cy))       # (rows of cells, cols of cells)
     rects: list[tuple[float, float, float, float]] = []
@@ -158,16 +151,18 @@ def layout_page(board: Board, *, paper: str | None = None) -> PageLayout:
             raise ParameterError(f"--paper {paper!r}: use one of fit, {', '.join(PAPERS)}")
         pw, ph = PAPERS[paper]
         fits = [(w, h) for w, h in ((pw, ph), (ph, pw)) if page_w <= w and page_h <= h]
+        length = "marker_length" if board.chess is None else "square_length"
         if not fits:
             raise ParameterError(
                 f"--paper {paper}: the board needs {page_w:.0f} x {page_h:.0f} mm with its "
                 f"border and footer but {paper} is {pw:g} x {ph:g} mm; use a larger paper, "
-                "--paper fit, or a smaller board.marker_length")
+                f"--paper fit, or a smaller board.{length}")
         page_w, page_h = fits[0]
     left = 0.5 * (page_w - content_w)
     top = 0.5 * (page_h - content_h)
     area_x = left + 0.5 * (content_w - area_w)
-    origin = (area_x + margin_mm, top + margin_mm)
+    x0, y0 = board.extent_m[:2]
+    origin = (area_x + margin_mm - 1000.0 * x0, top + margin_mm - 1000.0 * y0)
     board_rects = board_black_rects_m(board) * 1000.0 + np.array([*origin, *origin])
 
     # Footer: description, print note, then the scale bar with 10 mm ticks.

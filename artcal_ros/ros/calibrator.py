@@ -18,6 +18,10 @@ on a background thread on those queued frames (and now and then on the newest on
 its detections become views. ``~/calibrate`` waits for the queued views, runs the solve
 on its own thread and waits for it in a reentrant callback, so images keep flowing
 meanwhile.
+
+The views collected are saved under ``~/.ros/artcal/<camera_name>/`` every few seconds
+(``resume: true`` continues them after a stop, crash or kill). SIGINT and SIGTERM, any
+number of them, stop the node in order and it exits 0.
 """
 
 from __future__ import annotations
@@ -29,18 +33,22 @@ import time
 from dataclasses import replace
 from typing import Any
 
+import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import ExternalShutdownException, MultiThreadedExecutor
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from sensor_msgs.srv import SetCameraInfo
 from std_srvs.srv import Trigger
 
 from artcal_ros.core.board import Board
+from artcal_ros.core.board_mismatch import BoardMismatch
+from artcal_ros.core.broken_frames import broken_cause
 from artcal_ros.core.calibrate.board_check import check_board
 from artcal_ros.core.calibrate.session import SolveOutcome, busy_threads, run_solve
 from artcal_ros.core.camera_info import as_camera_info
@@ -54,6 +62,8 @@ from artcal_ros.ros import msgs
 from artcal_ros.ros.diagnostics import Counters, diagnostic_array
 from artcal_ros.ros.latest import LatestWorker
 from artcal_ros.ros.parameters import check_update, declare_parameters
+from artcal_ros.ros.session import open_session
+from artcal_ros.ros.signals import StopSignals, shut_down, spin_until_stopped
 
 IMAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                        reliability=ReliabilityPolicy.BEST_EFFORT,
@@ -81,6 +91,7 @@ class CalibratorNode(Node):
         from artcal_ros.core.detect import Detector, DetectorConfig
 
         self.detector = Detector(self.board, DetectorConfig.from_params(self.params))
+        self.board_mismatch = BoardMismatch(self.board)  # names a print that is not this board
         # Coverage is counted on the points the solve will use, as the solve counts it.
         self.collector = ViewCollector(
             self.board, CoverageConfig(min_views=int(self.params["min_views"]),
@@ -99,6 +110,8 @@ class CalibratorNode(Node):
         # collection's changes in order, and nothing is published after stop().
         self._output_lock = threading.Lock()
         self._closed = False
+        self.session = open_session(self, self.board, self.collector, self.params,
+                                    self._stopping)
 
         images = MutuallyExclusiveCallbackGroup()
         services = ReentrantCallbackGroup()
@@ -143,9 +156,7 @@ class CalibratorNode(Node):
             image = compressed_to_numpy(msg) if isinstance(msg, CompressedImage) \
                 else image_to_numpy(msg)
         except ImageFormatError as e:
-            self.counters.frame_broken()
-            self.get_logger().warning(f"skipping a broken frame: {e}",
-                                      throttle_duration_sec=5.0)
+            self._on_broken_frame(e)
             return
         self.frame_id = msg.header.frame_id or self.frame_id
         frame = self.live.offer(image)
@@ -161,10 +172,19 @@ class CalibratorNode(Node):
             if not self._closed:
                 self.overlay_pub.publish(overlay)
 
-    def _on_measured(self, dets: Detections, kept: bool) -> None:
-        # Background tier: a precise detection; a new view changes the heat map.
+    def _on_measured(self, image: np.ndarray, dets: Detections, kept: bool) -> None:
+        # Background tier: a precise detection; a new view changes the heat map, and a
+        # frame without a marker of the board may show another board or dictionary.
+        self.board_mismatch.observe(image, len(dets))
         if kept:
             self._publish_coverage()
+
+    def _on_broken_frame(self, error: ImageFormatError) -> None:
+        cause = broken_cause(error)
+        if self.counters.frame_broken(cause) and not self._stopping.is_set():
+            self.get_logger().warning(
+                f"skipping broken frames: {error} (logged once per cause; the diagnostics "
+                "count them under 'broken causes')")
 
     def _on_worker_error(self, error: BaseException) -> None:
         self.counters.frame_failed()
@@ -193,7 +213,7 @@ class CalibratorNode(Node):
         self.diag_pub.publish(diagnostic_array(
             self.get_name(), str(self.params["camera_name"]), self.counters.report(),
             dropped, self.collector.readiness(), self.last_summary,
-            self.get_clock().now().to_msg(),
+            self.get_clock().now().to_msg(), board_mismatch=self.board_mismatch.finding,
             extra={"frames measured": live.measured, "frames queued": live.queued,
                    "views refused (queue full)": live.refused,
                    "tone curve": self.detector.tone.text(),
@@ -215,8 +235,8 @@ class CalibratorNode(Node):
             self._solving.release()
         response.success = outcome.success
         response.message = outcome.message
-        if not self.context.ok():
-            return response  # shutting down: rosout is gone, nobody reads the log
+        if self._stopping.is_set() or not self.context.ok():
+            return response  # shutting down: rosout may be gone, nobody reads the log
         # rclpy refuses two severities from one call site, hence two calls.
         if outcome.success:
             self.get_logger().info(f"~/calibrate: {outcome.message}")
@@ -232,7 +252,9 @@ class CalibratorNode(Node):
         snap = self.collector.snapshot()
         readiness, views, size = snap.readiness, snap.views, snap.image_size
         if not readiness.enough_views:
-            return SolveOutcome(False, f"not enough views to calibrate: {readiness.summary()}")
+            mismatch = self.board_mismatch.finding
+            return SolveOutcome(False, f"not enough views to calibrate: {readiness.summary()}"
+                                + (f"; {mismatch}" if mismatch else ""))
         assert size is not None  # there are views
         self.get_logger().info(f"solving from {len(views)} views ({readiness.summary()})")
         outcome = run_solve(views, self.board, size, self.params, readiness,
@@ -253,7 +275,8 @@ class CalibratorNode(Node):
         if check.warning:
             self.get_logger().warning(f"board check: {check.warning}")
         if self.params["commit"]:
-            return self._commit(info, outcome)
+            committed = self._commit(info, outcome)
+            return committed if outcome.success else replace(committed, success=False)
         return outcome
 
     def _commit(self, info: CameraInfo, outcome: SolveOutcome) -> SolveOutcome:
@@ -311,11 +334,17 @@ class CalibratorNode(Node):
             self._closed = True
         self.worker.stop(timeout=0.5)
         self.live.stop(timeout=0.5)
+        self.session.close()  # the views as they are now, for resume
 
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run artcal_ros calibrator`` (console script ``calibrator``)."""
-    rclpy.init(args=args)
+    # Precise detection runs in the background on one thread of compiled kernels, so the
+    # other core stays free for the camera's frames (tracking, overlay, DDS); set
+    # ARTCAL_THREADS to give it more.
+    os.environ.setdefault("ARTCAL_THREADS", "1")
+    stop = StopSignals.install()
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     try:
         node = CalibratorNode()
     except (ParameterError, ArtcalError) as e:
@@ -324,15 +353,12 @@ def main(args: list[str] | None = None) -> int:
         return 2
     executor = MultiThreadedExecutor(num_threads=4)
     executor.add_node(node)
+    spin_thread = None
     try:
-        executor.spin()
-    except (KeyboardInterrupt, ExternalShutdownException):
-        pass
+        spin_thread = spin_until_stopped(executor, stop)
     finally:
         node.stop()
-        executor.shutdown(timeout_sec=1.0)
-        node.destroy_node()
-        rclpy.try_shutdown()
+        shut_down(node, executor, spin_thread)
     return _exit_status_when_threads_done(0)
 
 

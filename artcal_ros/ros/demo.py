@@ -1,9 +1,10 @@
 """``make demo``: replay the sample bag into the real calibrator node over DDS and calibrate.
 
 Starts the calibrator and replay nodes as separate processes on a private DDS domain
-(random ROS_DOMAIN_ID, localhost only), replays the bag once at its recorded speed,
-watches /diagnostics until the recording has been played and every view it offered is
-measured, calls ``~/calibrate``, and prints the one-line summary, the published
+(random ROS_DOMAIN_ID, localhost only), replays the bag at its recorded speed (again
+from the start while views are still missing: a busy machine measures fewer of them in
+one pass), watches /diagnostics until enough views are collected and every view offered
+is measured, calls ``~/calibrate``, and prints the one-line summary, the published
 CameraInfo and the calibration file's path. Nothing is written outside ``--out``.
 
     python -m artcal_ros.ros.demo [--bag bags/sample] [--params config/calibrator.yaml]
@@ -143,7 +144,7 @@ def _compare_with_truth(bag: Path, yaml_path: Path) -> None:
 
 
 def run(bag: Path, params_file: Path, out: Path, timeout_s: float,
-        rate: float = 1.0, loop: bool = False) -> int:
+        rate: float = 1.0, loop: bool = True) -> int:
     """The demo; 0 when the calibration succeeded.
 
     Args:
@@ -152,7 +153,7 @@ def run(bag: Path, params_file: Path, out: Path, timeout_s: float,
         out: directory for camera.yaml and the node logs; the nodes' working directory.
         timeout_s: seconds to wait for enough views.
         rate: replay speed (1.0: as recorded).
-        loop: replay again and again until enough views are collected.
+        loop: replay again and again until enough views are collected (False: once).
     """
     # Our own DDS domain on this machine only, before any rclpy context exists; the node
     # processes inherit it.
@@ -191,6 +192,7 @@ def run(bag: Path, params_file: Path, out: Path, timeout_s: float,
         deadline = time.monotonic() + timeout_s
         last = ""
         played_at: float | None = None
+        first_frame_at: float | None = None
         while True:
             rclpy.spin_once(node, timeout_sec=0.2)
             values = _diagnostics(diagnostics)
@@ -209,14 +211,20 @@ def run(bag: Path, params_file: Path, out: Path, timeout_s: float,
                 played_at = time.monotonic()
             queued = values.get("frames queued") if values else None
             enough = bool(values) and int(values["views"]) >= int(values["views needed"])
-            if enough and queued == "0" and (loop or played_at is not None):
+            if first_frame_at is None and values and int(values.get("frames seen", 0)) > 0:
+                first_frame_at = time.monotonic()
+            # With a loop, the whole recording is offered at least once before the solve.
+            one_pass = first_frame_at is not None \
+                and time.monotonic() - first_frame_at > span / rate + 1.0
+            if enough and queued == "0" and (played_at is not None or (loop and one_pass)):
                 break
             # Diagnostics come once a second: two after the end of the recording with
             # nothing queued are its final count.
             if played_at is not None and not loop and queued == "0" \
                     and time.monotonic() - played_at > 2.5:
                 print(f"demo: the recording gave {values['views']} views; "
-                      f"{values['views needed']} are needed (try --loop)")
+                      f"{values['views needed']} are needed (play it again and again: "
+                      "leave out --once)")
                 return 1
             if not calibrator.running():
                 print(f"demo: the calibrator node stopped:\n{calibrator.tail()}")
@@ -271,8 +279,9 @@ def main(argv: list[str] | None = None) -> int:
                     help="directory for camera.yaml and the node logs (default: a new temp dir)")
     ap.add_argument("--rate", type=float, default=1.0,
                     help="replay speed (default 1.0: as recorded)")
-    ap.add_argument("--loop", action="store_true",
-                    help="replay again and again until enough views are collected")
+    ap.add_argument("--once", action="store_true",
+                    help="play the recording once (default: again from the start until "
+                         "enough views are collected)")
     ap.add_argument("--timeout", type=float, default=120.0,
                     help="seconds to wait for enough views")
     args = ap.parse_args(argv)
@@ -294,7 +303,7 @@ def main(argv: list[str] | None = None) -> int:
     t0 = time.monotonic()
     try:
         status = run(bag.resolve(), params.resolve(), out.resolve(), args.timeout,
-                     args.rate, args.loop)
+                     args.rate, not args.once)
     except (DemoError, ArtcalError) as e:  # e.g. an unreadable bag: its one-line reason
         print(f"demo: {e}", file=sys.stderr)
         return 2

@@ -10,6 +10,7 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from std_msgs.msg import Header
 
+from artcal_ros.core.broken_frames import BrokenTally
 from artcal_ros.core.coverage import Readiness
 
 
@@ -24,6 +25,7 @@ class CountsReport:
         failed: frames where detection raised an unexpected error.
         markers_last: markers in the last processed frame.
         new_broken, new_failed: broken and failed frames since the previous report.
+        broken_causes: ``cause: n; ...`` for every kind of broken frame seen so far.
     """
 
     seen: int
@@ -33,6 +35,7 @@ class CountsReport:
     markers_last: int
     new_broken: int = 0
     new_failed: int = 0
+    broken_causes: str = ""
 
 
 class Counters:
@@ -51,6 +54,7 @@ class Counters:
         self._broken = 0
         self._failed = 0
         self._markers_last = 0
+        self._broken_causes = BrokenTally()
         self._broken_reported = 0
         self._failed_reported = 0
 
@@ -65,10 +69,11 @@ class Counters:
             self._processed += 1
             self._markers_last = markers
 
-    def frame_broken(self) -> None:
-        """A frame could not be decoded."""
+    def frame_broken(self, cause: str = "unknown") -> bool:
+        """A frame could not be decoded, for ``cause``; True if the first of that cause."""
         with self._lock:
             self._broken += 1
+            return self._broken_causes.add(cause)
 
     def frame_failed(self) -> None:
         """Detection raised an unexpected error on a frame."""
@@ -86,7 +91,8 @@ class Counters:
         with self._lock:
             out = CountsReport(self._seen, self._processed, self._broken, self._failed,
                                self._markers_last, self._broken - self._broken_reported,
-                               self._failed - self._failed_reported)
+                               self._failed - self._failed_reported,
+                               self._broken_causes.summary())
             self._broken_reported = self._broken
             self._failed_reported = self._failed
             return out
@@ -94,22 +100,26 @@ class Counters:
 
 def diagnostic_array(node_name: str, camera_name: str, counts: CountsReport, dropped: int,
                      readiness: Readiness, last_solve: str, stamp: Time, *,
+                     board_mismatch: str = "",
                      extra: Mapping[str, object] | None = None) -> DiagnosticArray:
     """One DiagnosticStatus named after the node: counts, coverage and readiness.
 
     Level WARN while broken frames or detection failures keep coming (since the previous
-    report), else OK. ``frames used`` is the views kept in the collection now (it restarts
-    at ~/reset and when the image size changes, as the collection does).
+    report) or while the markers in view are not the board's, else OK. ``frames used`` is
+    the views kept in the collection now (it restarts at ~/reset and when the image size
+    changes, as the collection does).
 
     Args:
         counts: from :meth:`Counters.report`.
         dropped: frames replaced while detection was busy.
         readiness: the collection's state (views, coverage, what is missing).
+        board_mismatch: markers in view that are not the board's, in words (WARN).
         extra: more key/values, after the standard ones.
     """
-    problems = []
+    problems = [board_mismatch] if board_mismatch else []
     if counts.new_broken:
-        problems.append(f"{counts.new_broken} broken frames skipped in the last second")
+        problems.append(f"{counts.new_broken} broken frames skipped in the last second "
+                        f"(so far: {counts.broken_causes})")
     if counts.new_failed:
         problems.append(f"detection failed on {counts.new_failed} frames in the last second")
     level = DiagnosticStatus.WARN if problems else DiagnosticStatus.OK
@@ -120,6 +130,8 @@ def diagnostic_array(node_name: str, camera_name: str, counts: CountsReport, dro
         "frames used": readiness.views,
         "frames dropped (busy)": dropped,
         "frames broken": counts.broken,
+        "broken causes": counts.broken_causes,
+        "board mismatch": board_mismatch,
         "frames failed": counts.failed,
         "markers in last frame": counts.markers_last,
         "views": readiness.views,

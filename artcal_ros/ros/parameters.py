@@ -23,7 +23,7 @@ from artcal_ros.core.params import PARAMETERS, ParamValue, validate
 
 # Changing these would invalidate the views already collected: restart the node instead.
 READ_ONLY = frozenset(s.name for s in PARAMETERS if s.name.startswith("board.")
-                      or s.name in ("points", "camera_model", "image_transport"))
+                      or s.name in ("points", "camera_model", "image_transport", "resume"))
 
 
 def _descriptor(name: str) -> ParameterDescriptor:

@@ -25,6 +25,7 @@ file and where), 2 for a bad parameter.
 from __future__ import annotations
 
 import sys
+import threading
 import time
 from collections.abc import Iterator, Sequence
 from dataclasses import dataclass
@@ -39,10 +40,12 @@ from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+from rclpy.signals import SignalHandlerOptions
 
 from artcal_ros.bag import BagMessage, BagReader
 from artcal_ros.core.errors import BagError, ParameterError
 from artcal_ros.ros.msgs import message_class
+from artcal_ros.ros.signals import StopSignals
 
 
 @dataclass(frozen=True)
@@ -146,9 +149,11 @@ class Player:
         BagError: the bag cannot be opened; ParameterError: nothing to play.
     """
 
-    def __init__(self, node: Node, config: ReplayConfig) -> None:
+    def __init__(self, node: Node, config: ReplayConfig, *,
+                 stop: threading.Event | None = None) -> None:
         self.node = node
         self.config = config
+        self._stop = stop or threading.Event()  # set: stop playing (a stop signal came)
         self.log = node.get_logger()
         self.reader = BagReader(config.bag)
         recorded = self.reader.topics
@@ -176,10 +181,13 @@ class Player:
             raise ParameterError(f"{config.bag}: none of its topics can be played")
         self.played = 0
 
+    def _ok(self) -> bool:
+        return rclpy.ok() and not self._stop.is_set()
+
     def wait_for_subscribers(self) -> bool:
         """Poll until a publisher has a subscriber (True), or the timeout or Ctrl-C (False)."""
         deadline = time.monotonic() + self.config.wait_timeout
-        while rclpy.ok() and time.monotonic() < deadline:
+        while self._ok() and time.monotonic() < deadline:
             if any(p.get_subscription_count() > 0 for p in self.publishers.values()):
                 # Discovery is two-sided: give the subscriber a moment to match us as well,
                 # or the first messages can be lost.
@@ -189,7 +197,7 @@ class Player:
         return False
 
     def _sleep_until(self, when: float) -> bool:
-        while rclpy.ok():
+        while self._ok():
             left = when - time.monotonic()
             if left <= 0:
                 return True
@@ -211,11 +219,11 @@ class Player:
             BagError: where the recording is broken (after the messages before it).
         """
         rate = self.config.rate
-        while rclpy.ok():
+        while self._ok():
             wall0: float | None = None
             bag0 = 0
             for m in self._messages():
-                if not rclpy.ok():
+                if not self._ok():
                     return
                 if wall0 is None:
                     wall0, bag0 = time.monotonic(), m.log_time_ns
@@ -241,22 +249,23 @@ class Player:
 
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run artcal_ros replay`` (console script ``replay``)."""
-    rclpy.init(args=args)
+    stop = StopSignals.install()
+    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node("replay")
     log = node.get_logger()
     status = 0
     player: Player | None = None
     try:
-        player = Player(node, declare_replay_parameters(node))
+        player = Player(node, declare_replay_parameters(node), stop=stop.event)
         names = ", ".join(f"{t} -> {p.topic_name}" if t != p.topic_name else t
                           for t, p in player.publishers.items())
         log.info(f"playing {player.config.bag}: {names}")
         if player.config.wait_for_subscribers and not player.wait_for_subscribers() \
-                and rclpy.ok():
+                and not stop.is_set():
             log.warning(f"no subscriber after {player.config.wait_timeout:g} s; playing anyway")
         t0 = time.monotonic()
         player.play()
-        if rclpy.ok():
+        if not stop.is_set():
             player.flush()
             log.info(f"played {player.played} messages in {time.monotonic() - t0:.1f} s")
     except ParameterError as e:
@@ -265,7 +274,7 @@ def main(args: list[str] | None = None) -> int:
     except BagError as e:
         log.error(f"cannot play the bag: {e}")
         status = 1
-    except (KeyboardInterrupt, ExternalShutdownException):
+    except ExternalShutdownException:
         pass
     finally:
         if player is not None:

@@ -26,7 +26,7 @@ from artcal_ros.core.errors import ArtcalError, ParameterError
 from artcal_ros.synth.backdrop import Backdrop
 from artcal_ros.synth.camera import Camera
 from artcal_ros.synth.photometry import ENCODINGS, Photometry
-from artcal_ros.synth.poses import marker_truth, random_poses, smooth_poses
+from artcal_ros.synth.poses import marker_truth, point_truth, random_poses, smooth_poses
 from artcal_ros.synth.truth import write_truth
 from artcal_ros.synth.view import RenderedView, render_view
 
@@ -79,8 +79,12 @@ def motion_blur_from_poses(board: Board, cam: Camera, poses: list[Pose], index: 
     lo, hi = max(index - 1, 0), min(index + 1, len(poses) - 1)
     if hi == lo:
         return 0.0, 0.0
-    _, a, inside_a, _ = marker_truth(board, cam, *poses[lo])
-    _, b, inside_b, _ = marker_truth(board, cam, *poses[hi])
+    if board.has_points:
+        a, inside_a, _ = point_truth(board, cam, *poses[lo])
+        b, inside_b, _ = point_truth(board, cam, *poses[hi])
+    else:
+        _, a, inside_a, _ = marker_truth(board, cam, *poses[lo])
+        _, b, inside_b, _ = marker_truth(board, cam, *poses[hi])
     both = inside_a & inside_b
     if not both.any():
         return 0.0, 0.0

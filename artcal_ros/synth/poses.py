@@ -53,6 +53,61 @@ def marker_truth(board: Board, cam: Camera, rvec: np.ndarray,
     return np.asarray(corners), np.asarray(centers), inside, np.asarray(sides.min(axis=1))
 
 
+def point_truth(board: Board, cam: Camera, rvec: np.ndarray,
+                tvec: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """True image of every point of the board (saddle points) for the pose T_cam_board.
+
+    Returns:
+        points_px: (M, 2) float64 pixels, in ``board.point_ids`` order (NaN behind the camera);
+        inside: (M,) bool, in front of the camera, within the image and the lens's field;
+        spacing_px: (M,) float64, distance to the nearest grid neighbour's image, pixels.
+    """
+    R = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))[0]
+    t = np.asarray(tvec, dtype=np.float64).reshape(3)
+    cam_pts = board.object_points() @ R.T + t
+    px = np.asarray(project_points(cam, cam_pts))
+    w, h = cam.size
+    with np.errstate(invalid="ignore"):
+        inside = ((px[:, 0] >= 0) & (px[:, 0] <= w - 1) & (px[:, 1] >= 0) & (px[:, 1] <= h - 1)
+                  & (field_radius(cam, cam_pts) <= cam.max_field_radius()))
+    rc = board.point_cells(board.point_ids)
+    grid = np.full((rc[:, 0].max() + 1, rc[:, 1].max() + 1, 2), np.nan)
+    grid[rc[:, 0], rc[:, 1]] = px
+    gaps = []
+    for axis in (0, 1):
+        d = np.linalg.norm(np.diff(grid, axis=axis), axis=2)
+        pad = [(0, 0), (0, 0)]
+        pad[axis] = (1, 0)
+        before = np.pad(d, pad, constant_values=np.nan)
+        pad[axis] = (0, 1)
+        after = np.pad(d, pad, constant_values=np.nan)
+        gaps += [before, after]
+    spacing = np.nanmin(np.stack(gaps), axis=0)[rc[:, 0], rc[:, 1]]
+    return px, np.asarray(inside), np.asarray(spacing)
+
+
+def feature_visibility(board: Board, cam: Camera, rvec: np.ndarray,
+                       tvec: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(inside (K,) bool, size_px (K,)) of the board's correspondences for a pose: its markers
+    (shortest side), or its points (grid spacing) plus the pattern's four outer corners (so
+    that every entry inside means the whole board is in view)."""
+    if not board.has_points:
+        _, _, inside, side = marker_truth(board, cam, rvec, tvec)
+        return inside, side
+    _, inside, spacing = point_truth(board, cam, rvec, tvec)
+    x0, y0, x1, y1 = board.extent_m
+    outer = np.array([[x0, y0, 0.0], [x1, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0]])
+    R = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64).reshape(3, 1))[0]
+    cam_pts = outer @ R.T + np.asarray(tvec, dtype=np.float64).reshape(3)
+    px = np.asarray(project_points(cam, cam_pts))
+    w, h = cam.size
+    with np.errstate(invalid="ignore"):
+        out_in = ((px[:, 0] >= 0) & (px[:, 0] <= w - 1) & (px[:, 1] >= 0) & (px[:, 1] <= h - 1)
+                  & (field_radius(cam, cam_pts) <= cam.max_field_radius()))
+    return (np.concatenate([inside, out_in]),
+            np.concatenate([spacing, np.full(4, np.nanmedian(spacing))]))
+
+
 def _rot(axis: np.ndarray, angle: float) -> np.ndarray:
     return np.asarray(cv2.Rodrigues((np.asarray(axis, dtype=np.float64) * angle).reshape(3, 1))[0])
 
@@ -71,7 +126,7 @@ def _fit_distance(board: Board, cam: Camera, target: np.ndarray, R_bc: np.ndarra
                   lo: float, hi: float) -> float | None:
     """Smallest distance (within [lo, hi]) at which every marker is inside the image."""
     def all_in(d: float) -> bool:
-        return bool(marker_truth(board, cam, *_aim(board, target, R_bc, d))[2].all())
+        return bool(feature_visibility(board, cam, *_aim(board, target, R_bc, d))[0].all())
     if not all_in(hi):
         return None
     for _ in range(24):
@@ -108,7 +163,8 @@ def random_poses(board: Board, cam: Camera, n: int, rng: np.random.Generator, *,
     kinds = np.array([True] * n_partial + [False] * (n - n_partial))
     rng.shuffle(kinds)
     w_m, h_m = board.size_m
-    center = np.array([w_m / 2, h_m / 2, 0.0])
+    x0, y0 = board.extent_m[:2]
+    center = np.array([x0 + w_m / 2, y0 + h_m / 2, 0.0])
     poses: list[Pose] = []
     for partial in kinds:
         for _attempt in range(300):
@@ -118,7 +174,8 @@ def random_poses(board: Board, cam: Camera, n: int, rng: np.random.Generator, *,
             R_bc = _rot(np.array([math.cos(phi), math.sin(phi), 0.0]), tilt) @ _rot(
                 np.array([0.0, 0.0, 1.0]), roll)
             if partial:
-                target = np.array([rng.uniform(0.1, 0.9) * w_m, rng.uniform(0.1, 0.9) * h_m, 0])
+                target = np.array([x0 + rng.uniform(0.1, 0.9) * w_m,
+                                   y0 + rng.uniform(0.1, 0.9) * h_m, 0])
                 fit = _fit_distance(board, cam, center, R_bc, min_distance, 4 * max_distance)
                 fit = fit if fit is not None else max_distance
                 lo, top = min_distance, min(max_distance, 0.6 * fit)
@@ -134,7 +191,7 @@ def random_poses(board: Board, cam: Camera, n: int, rng: np.random.Generator, *,
                     continue
                 dist = min(fit * rng.uniform(1.02, 1.3), max_distance)
             rvec, tvec = _aim(board, target, R_bc, dist)
-            _, _, inside, side = marker_truth(board, cam, rvec, tvec)
+            inside, side = feature_visibility(board, cam, rvec, tvec)
             if inside.sum() < min_inside or np.median(side[inside]) < 8.0:
                 continue
             if partial and inside.all():

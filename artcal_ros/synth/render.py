@@ -56,16 +56,10 @@ def _board_cells(board: Board) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         table: (len(xs) + 1, len(ys) + 1) float64, 1 where cell (i, j) is white; cell i spans
             [xs[i - 1], xs[i]) (cell 0 and the last cell run off to infinity).
     """
-    n = board.bits + 2
-    lines = []
-    for count in (board.cols, board.rows):
-        k = np.arange(count)[:, None]
-        modules = (k * board.pitch + np.arange(n + 1)[None, :] * board.module_length).ravel()
-        tiles = np.arange(1, count) * board.pitch - 0.5 * board.marker_separation
-        lines.append(np.unique(np.concatenate([modules, tiles])))
+    lines = list(board.print_lines())
     mids = []
     for ls in lines:
-        ends = np.concatenate([[ls[0] - board.module_length], ls, [ls[-1] + board.module_length]])
+        ends = np.concatenate([[ls[0] - board.finest_m], ls, [ls[-1] + board.finest_m]])
         mids.append(0.5 * (ends[:-1] + ends[1:]))
     mx, my = np.meshgrid(mids[0], mids[1], indexing="ij")
     table = board.is_white(mx, my).astype(np.float64)
@@ -74,9 +68,9 @@ def _board_cells(board: Board) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
 
 def paper_bounds(board: Board) -> tuple[float, float, float, float]:
     """(x0, x1, y0, y1) of the printed sheet in the board frame, metres."""
-    w, h = board.size_m
+    x0, y0, x1, y1 = board.extent_m
     m = board.margin_m
-    return -m, w + m, -m, h + m
+    return x0 - m, x1 + m, y0 - m, y1 + m
 
 
 def box_cdf(d: np.ndarray, nx: np.ndarray, ny: np.ndarray, h: float) -> np.ndarray:
@@ -194,7 +188,7 @@ def _coverage_block(board: Board, R: np.ndarray, t: np.ndarray, ray: np.ndarray,
     bxo, byo, Jo = bx[on], by[on], J[:, on]
     wo, ao, corner = _shade(board, bxo, byo, Jo, 1.0)
     # sub-boxes where the pixel holds a pattern corner or more than one parallel module edge
-    S = np.minimum(np.ceil(ext[on] / board.module_length * 1.05), MAX_SUPERSAMPLE)
+    S = np.minimum(np.ceil(ext[on] / board.finest_m * 1.05), MAX_SUPERSAMPLE)
     S = np.maximum(S, 1).astype(np.int64)
     S[corner] = np.maximum(S[corner], CORNER_SUPERSAMPLE)
     for s in range(2, MAX_SUPERSAMPLE + 1):

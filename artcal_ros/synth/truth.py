@@ -8,7 +8,8 @@ Format::
      "frames": [{"file": "frame_0000.png" | "stamp_ns": int,
                  "rvec": [3], "tvec": [3],             # T_cam_board, metres
                  "markers": [{"id", "corners": [[x, y] x4], "center": [x, y],
-                              "inside": bool, "side_px": float}]}]}
+                              "inside": bool, "side_px": float}],
+                 "points": [{"id", "xy": [x, y], "inside": bool}]}]}   # point boards only
 
 Image points are pixels (OpenCV convention), rounded to 1e-7 px. Markers behind
 the camera are left out; ``inside`` is False for markers not wholly in the image.
@@ -20,7 +21,7 @@ import json
 import os
 import tempfile
 from collections.abc import Sequence
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
@@ -46,6 +47,9 @@ class TruthFrame:
         centers_px: (N, 2) float64 true image of each marker's centre, pixels.
         inside: (N,) bool, marker wholly inside the image.
         side_px: (N,) float64, shortest side of the marker's image, pixels.
+        point_ids: (M,) int64 board points in front of the camera (saddle points).
+        points_px: (M, 2) float64 true image of each point, pixels.
+        points_inside: (M,) bool, the point is in the image.
     """
 
     file: str | None
@@ -57,14 +61,19 @@ class TruthFrame:
     centers_px: np.ndarray
     inside: np.ndarray
     side_px: np.ndarray
+    point_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    points_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    points_inside: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     def true_detections(self, image_size: tuple[int, int], *,
                         min_side_px: float = 0.0) -> Detections:
-        """The markers wholly inside the image as perfect :class:`Detections` (true points),
-        optionally only those whose image side is at least ``min_side_px``."""
+        """The markers wholly inside the image (and points in it) as perfect
+        :class:`Detections`, optionally only markers whose side is >= ``min_side_px``."""
         keep = self.inside & ~(self.side_px < min_side_px)
+        pk = self.points_inside
         return Detections(self.ids[keep], self.corners_px[keep], self.centers_px[keep],
-                          image_size, source=self.file or f"stamp {self.stamp_ns}")
+                          image_size, source=self.file or f"stamp {self.stamp_ns}",
+                          point_ids=self.point_ids[pk], points_px=self.points_px[pk])
 
 
 @dataclass(frozen=True)
@@ -95,17 +104,15 @@ class Truth:
 
 def board_params(board: Board) -> dict[str, Any]:
     """The ``board.*`` parameters that rebuild ``board`` with :meth:`Board.from_params`."""
-    return {"board.type": "marker_grid", "board.dictionary": board.dictionary_name,
-            "board.cols": board.cols, "board.rows": board.rows,
-            "board.marker_length": board.marker_length,
-            "board.marker_separation": board.marker_separation,
-            "board.first_id": board.first_id, "board.polarity": board.polarity}
+    return board.to_params()
 
 
 def frame_record(*, rvec: np.ndarray, tvec: np.ndarray, ids: np.ndarray,
                  corners_px: np.ndarray, centers_px: np.ndarray, inside: np.ndarray,
                  side_px: np.ndarray, file: str | None = None,
-                 stamp_ns: int | None = None) -> dict[str, Any]:
+                 stamp_ns: int | None = None, point_ids: np.ndarray | None = None,
+                 points_px: np.ndarray | None = None,
+                 points_inside: np.ndarray | None = None) -> dict[str, Any]:
     """One frame's JSON record (markers behind the camera are left out)."""
     rec: dict[str, Any] = {"file": file} if file is not None else {"stamp_ns": int(stamp_ns or 0)}
     rec["rvec"] = [float(v) for v in np.ravel(rvec)]
@@ -121,6 +128,13 @@ def frame_record(*, rvec: np.ndarray, tvec: np.ndarray, ids: np.ndarray,
             "inside": bool(inside[k]),
             "side_px": round(float(side_px[k]), 4)})
     rec["markers"] = markers
+    if point_ids is not None and points_px is not None and len(point_ids):
+        inside_p = (np.ones(len(point_ids), bool) if points_inside is None
+                    else np.asarray(points_inside))
+        rec["points"] = [{"id": int(i), "xy": np.round(p, _DECIMALS).tolist(),
+                          "inside": bool(f)}
+                         for i, p, f in zip(point_ids, points_px, inside_p, strict=True)
+                         if np.all(np.isfinite(p))]
     return rec
 
 
@@ -155,6 +169,7 @@ def load_truth(path: str | Path) -> Truth:
         frames = []
         for rec in doc["frames"]:
             ms = rec["markers"]
+            ps = rec.get("points", [])
             frames.append(TruthFrame(
                 file=rec.get("file"),
                 stamp_ns=int(rec["stamp_ns"]) if "stamp_ns" in rec else None,
@@ -165,7 +180,10 @@ def load_truth(path: str | Path) -> Truth:
                                     dtype=np.float64).reshape(-1, 4, 2),
                 centers_px=np.array([m["center"] for m in ms], dtype=np.float64).reshape(-1, 2),
                 inside=np.array([m["inside"] for m in ms], dtype=bool),
-                side_px=np.array([m.get("side_px", np.nan) for m in ms], dtype=np.float64)))
+                side_px=np.array([m.get("side_px", np.nan) for m in ms], dtype=np.float64),
+                point_ids=np.array([p["id"] for p in ps], dtype=np.int64),
+                points_px=np.array([p["xy"] for p in ps], dtype=np.float64).reshape(-1, 2),
+                points_inside=np.array([p["inside"] for p in ps], dtype=bool)))
     except OSError as e:
         raise ArtcalError(f"cannot read truth file {path}: {e.strerror}") from e
     except (ValueError, KeyError, TypeError, IndexError) as e:

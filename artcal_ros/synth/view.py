@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 
 import numpy as np
 
@@ -19,7 +19,7 @@ from artcal_ros.synth.photometry import (
     sense_and_encode,
     vignette,
 )
-from artcal_ros.synth.poses import marker_truth
+from artcal_ros.synth.poses import marker_truth, point_truth
 from artcal_ros.synth.render import board_coverage
 from artcal_ros.synth.truth import (
     frame_record,
@@ -41,6 +41,9 @@ class RenderedView:
         centers_px: (N, 2) float64 true image of each marker's centre, pixels.
         inside: (N,) bool, the marker's 4 corners are in front of the camera and in the image.
         side_px: (N,) float64 shortest side of each marker's image, pixels.
+        point_ids: (M,) int64 every point of the board (saddle points; empty on a marker grid).
+        points_px: (M, 2) float64 the true image of each point, pixels (NaN behind the camera).
+        points_inside: (M,) bool, the point is in front of the camera and in the image.
     """
 
     image: np.ndarray
@@ -52,14 +55,19 @@ class RenderedView:
     centers_px: np.ndarray
     inside: np.ndarray
     side_px: np.ndarray
+    point_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
+    points_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
+    points_inside: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     def true_detections(self, *, min_side_px: float = 0.0) -> Detections:
-        """The markers wholly inside the image as perfect :class:`Detections` (true points),
-        optionally only those whose image side is at least ``min_side_px``."""
+        """The markers (and points) inside the image as perfect :class:`Detections` (true
+        points), optionally only markers whose image side is at least ``min_side_px``."""
         keep = self.inside & (self.side_px >= min_side_px)
         h, w = self.image.shape[:2]
+        pk = self.points_inside
         return Detections(self.ids[keep], self.corners_px[keep], self.centers_px[keep], (w, h),
-                          source="synth")
+                          source="synth", point_ids=self.point_ids[pk],
+                          points_px=self.points_px[pk])
 
     def truth_record(self, *, file: str | None = None,
                      stamp_ns: int | None = None) -> dict[str, object]:
@@ -67,7 +75,8 @@ class RenderedView:
         return frame_record(rvec=self.rvec, tvec=self.tvec, ids=self.ids,
                             corners_px=self.corners_px, centers_px=self.centers_px,
                             inside=self.inside, side_px=self.side_px, file=file,
-                            stamp_ns=stamp_ns)
+                            stamp_ns=stamp_ns, point_ids=self.point_ids,
+                            points_px=self.points_px, points_inside=self.points_inside)
 
 
 _LUMA = np.array([0.2126, 0.7152, 0.0722])   # linear RGB -> luminance
@@ -141,6 +150,10 @@ def render_view(board: Board, cam: Camera, rvec: np.ndarray, tvec: np.ndarray, *
                         backdrop=backdrop)
     image = sense_and_encode(lin, phot, rng, encoding)
     corners, centers, inside, side = marker_truth(board, cam, rvec, tvec)
+    points, points_inside = np.zeros((0, 2)), np.zeros(0, bool)
+    if board.has_points:
+        points, points_inside, _ = point_truth(board, cam, rvec, tvec)
     return RenderedView(image=image, encoding=encoding, rvec=rvec, tvec=tvec,
                         ids=board.ids.copy(), corners_px=corners, centers_px=centers,
-                        inside=inside, side_px=side)
+                        inside=inside, side_px=side, point_ids=board.point_ids.copy(),
+                        points_px=points, points_inside=points_inside)

@@ -6,6 +6,7 @@ from collections.abc import Iterator
 
 import pytest
 
+from test.integration.frames import CalibrationBag, calibration_bag
 from test.integration.ros_harness import Probe, configure_ros_env, stop_all
 
 configure_ros_env()
@@ -24,3 +25,9 @@ def _stop_node_processes() -> Iterator[None]:
     """No node outlives its test, even a failed one."""
     yield
     stop_all()
+
+
+@pytest.fixture(scope="session")
+def bag(tmp_path_factory: pytest.TempPathFactory) -> CalibrationBag:
+    """Board frames with the camera that took them (bags/sample, or rendered)."""
+    return calibration_bag(tmp_path_factory.mktemp("bag"))

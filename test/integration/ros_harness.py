@@ -9,9 +9,10 @@ from __future__ import annotations
 import contextlib
 import os
 import subprocess
+import tempfile
 import threading
 import time
-from collections.abc import Callable, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -24,13 +25,19 @@ BIN = ROOT / ".venv" / "bin"
 def configure_ros_env() -> None:
     """Put this test session on its own DDS domain, on this machine only.
 
-    Called at conftest import, before any rclpy context exists; subprocesses inherit it.
+    Called at conftest import, before any rclpy context exists; subprocesses inherit it,
+    and a temporary HOME (``ARTCAL_TEST_HOME``, made once) for what nodes save there.
     ARTCAL_TEST_DOMAIN, when set, chooses the domain (so several pytest processes can share
     one); otherwise a random one is drawn and recorded there.
     """
     if "ARTCAL_TEST_DOMAIN" not in os.environ:
         os.environ["ARTCAL_TEST_DOMAIN"] = str(processes.random_domain_id())
     os.environ.update(processes.private_domain_env(int(os.environ["ARTCAL_TEST_DOMAIN"])))
+    # The nodes save sessions and logs under $HOME/.ros: a home of the test session's own
+    # keeps them out of the user's and apart from other test sessions.
+    if "ARTCAL_TEST_HOME" not in os.environ:
+        os.environ["ARTCAL_TEST_HOME"] = tempfile.mkdtemp(prefix="artcal_test_home_")
+    os.environ["HOME"] = os.environ["ARTCAL_TEST_HOME"]
 
 
 def stop_all() -> None:
@@ -65,9 +72,12 @@ class NodeProcess(processes.NodeProcess):
     in ``log_dir/<name>.log``), with test failures as AssertionError."""
 
     def __init__(self, script: str, ros_args: Sequence[str], log_dir: Path,
-                 name: str | None = None, *, per_test: bool = True) -> None:
+                 name: str | None = None, *, per_test: bool = True,
+                 env: Mapping[str, str] | None = None) -> None:
+        """``env``: the environment to run in (default: this process's)."""
         super().__init__([str(BIN / script), "--ros-args", *ros_args],
-                         log_dir / f"{name or script}.log", name=name or script, cwd=ROOT)
+                         log_dir / f"{name or script}.log", name=name or script, cwd=ROOT,
+                         env=env)
         if per_test:  # else the fixture that started it stops it
             RUNNING.append(self)
 
@@ -88,8 +98,25 @@ class NodeProcess(processes.NodeProcess):
         killed_before = self.killed  # a second stop() of a killed node just gives its status
         status = super().stop(timeout)
         if self.killed and not killed_before:
-            raise AssertionError(f"{self.name} ignored SIGINT for {timeout:g} s")
+            raise AssertionError(f"{self.name} ignored SIGINT for {timeout:g} s; its output "
+                                 f"ended:\n{self.output()[-4000:]}")
         return status
+
+
+PARAMS = ROOT / "config" / "calibrator.yaml"
+
+
+def calibrator_node(log_dir: Path, name: str, *params: str, image_topic: str | None = None,
+                    env: Mapping[str, str] | None = None) -> NodeProcess:
+    """The calibrator console script as node ``name`` with config/calibrator.yaml, its
+    ``image`` on ``image_topic`` (default ``/<name>/image``), its calibration file in
+    ``log_dir``, and ``params`` (``key:=value``) on top."""
+    args = ["--params-file", str(PARAMS), "-r", f"__node:={name}",
+            "-r", f"image:={image_topic or f'/{name}/image'}",
+            "-p", f"output_file:={log_dir / (name + '.yaml')}"]
+    for p in params:
+        args += ["-p", p]
+    return NodeProcess("calibrator", args, log_dir, name=name, env=env)
 
 
 class Probe:

@@ -24,7 +24,7 @@ from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
 
-from test.integration.frames import CalibrationBag, calibration_bag, image_messages
+from test.integration.frames import CalibrationBag, image_messages
 from test.integration.ros_harness import (
     ROOT,
     NodeProcess,
@@ -32,6 +32,7 @@ from test.integration.ros_harness import (
     diagnostics_values,
     wait_until,
 )
+from test.integration.streaming import Streamer
 
 pytestmark = pytest.mark.integration
 
@@ -63,32 +64,6 @@ class Answer:
     success: bool | None
     message: str
     seconds: float
-
-
-class Streamer:
-    """Publishes the frames round and round from a thread until stopped."""
-
-    def __init__(self, publisher: Any, frames: list[Image]) -> None:
-        self._publisher = publisher
-        self._frames = frames
-        self._stop = threading.Event()
-        self.sent = 0
-        self._thread = threading.Thread(target=self._run, name="stream", daemon=True)
-        self._thread.start()
-
-    def _run(self) -> None:
-        while not self._stop.wait(STREAM_PERIOD_S):
-            self._publisher.publish(self._frames[self.sent % len(self._frames)])
-            self.sent += 1
-
-    def stop(self) -> None:
-        self._stop.set()
-        self._thread.join(5.0)
-
-
-@pytest.fixture(scope="module")
-def bag(tmp_path_factory: pytest.TempPathFactory) -> CalibrationBag:
-    return calibration_bag(tmp_path_factory.mktemp("bag"))
 
 
 @pytest.fixture
@@ -135,7 +110,7 @@ def test_concurrent_service_calls_while_streaming(tmp_path: Path, probe: Probe,
     nodes = [probe, *callers]
     clients = {(p.node.get_name(), srv): p.node.create_client(Trigger, f"/{NAME}/{srv}")
                for p in nodes for srv in ("calibrate", "reset")}
-    streamer = Streamer(publisher, frames)
+    streamer = Streamer(publisher, frames, STREAM_PERIOD_S)
     answers: list[Answer] = []
     errors: list[BaseException] = []
     try:

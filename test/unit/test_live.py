@@ -137,7 +137,7 @@ def test_only_precise_detections_become_views(sweep: list[RenderedView],
     measured: list[Detections] = []
     live = LiveDetection(BOARD, Detector(BOARD).detect, collector,
                          LiveConfig(refresh_s=0.0),
-                         on_measured=lambda dets, kept: measured.append(dets))
+                         on_measured=lambda image, dets, kept: measured.append(dets))
     try:
         run_stream(live, sweep[:9], 0.05)
         # the camera comes to rest: the fast tier soon shows the board's markers
@@ -185,3 +185,30 @@ def test_a_full_queue_refuses_views_and_loses_nothing_else(
     assert collector.pending == 0
     # the two queued, the one in detection and one refresh of the newest frame at most
     assert 1 <= len(collector.views) <= 4
+
+
+def test_a_detection_running_across_a_reset_adds_nothing(
+        sweep: list[RenderedView], precise: list[Detections]) -> None:
+    started, gate = threading.Event(), threading.Event()
+
+    def slow_detect(image: np.ndarray) -> Detections:
+        started.set()
+        gate.wait(30.0)
+        return precise[0]
+
+    collector = ViewCollector(BOARD)
+    live = LiveDetection(BOARD, slow_detect, collector, LiveConfig(refresh_s=0.0))
+    try:
+        live.offer(sweep[0].image)  # the newest frame: measured as soon as the tier is idle
+        assert started.wait(30.0)
+        live.reset()
+        collector.reset()
+        gate.set()
+        deadline = time.monotonic() + 30.0
+        while live.counts().measured < 1 and time.monotonic() < deadline:
+            time.sleep(0.01)
+        assert live.counts().measured >= 1
+    finally:
+        gate.set()
+        live.stop()
+    assert collector.views == []  # the view it measured belonged to the collection before

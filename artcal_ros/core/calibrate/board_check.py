@@ -62,7 +62,7 @@ class BoardCheck:
     def text(self) -> str:
         """One line for a summary or a diagnostic."""
         if not self.views:
-            return "not measured (too few markers per view)"
+            return "not measured (too few markers per view, or not a marker grid)"
         state = "DIFFERS, see the warning" if self.warning else "matches the configuration"
         return (f"{state}: separation {self.marker_separation:.4f} m (marker length "
                 f"{self.marker_length:.4f} m, {self.views} views); edge shift "
@@ -113,6 +113,10 @@ def check_board(views: Sequence[Detections], board: Board,
         camera: the calibrated camera: points are undistorted through it first.
     """
     L = board.marker_length
+    if board.board_type != "marker_grid":
+        # a ChArUco board's markers are not on one pitch, a chessboard has none
+        return BoardCheck(L, board.marker_separation, float("nan"), float("nan"),
+                          float("nan"), 0, "")
     pitch = L + board.marker_separation
     g_views, w_views, shifts = [], [], []
     for det in views:

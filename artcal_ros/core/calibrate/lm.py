@@ -10,7 +10,7 @@ from artcal_ros.core.calibrate.model import (
     free_columns,
     free_jacobian,
     project,
-    project_jacobian,
+    project_with_jacobian,
 )
 
 
@@ -32,7 +32,8 @@ def point_weights(view: ViewPoints) -> np.ndarray:
 def bundle_adjust(views: list[ViewPoints], K0: np.ndarray, D0: np.ndarray, model: str,
                    *, free: tuple[str, ...], weighted: bool = False,
                    poses: tuple[np.ndarray, np.ndarray] | None = None,
-                   max_iterations: int = 100) -> tuple[np.ndarray, np.ndarray, np.ndarray,
+                   max_iterations: int = 100,
+                   tolerance: float = 1e-12) -> tuple[np.ndarray, np.ndarray, np.ndarray,
                                                        np.ndarray]:
     """Levenberg-Marquardt over the free intrinsics and every view's pose.
 
@@ -47,6 +48,9 @@ def bundle_adjust(views: list[ViewPoints], K0: np.ndarray, D0: np.ndarray, model
             stay at K0, D0, and a tied fx = fy moves both: start from K0 with fx = fy).
         weighted: weight each point by :func:`point_weights`.
         poses: (rvecs (V, 3), tvecs (V, 3)) to start from; estimated if None.
+        max_iterations: at most this many accepted steps.
+        tolerance: stop once a step lowers the weighted squared error by less than this
+            fraction of it.
 
     Returns:
         (K (3, 3), dist (n,), rvecs (V, 3), tvecs (V, 3)).
@@ -78,51 +82,59 @@ def bundle_adjust(views: list[ViewPoints], K0: np.ndarray, D0: np.ndarray, model
             total += float(np.sum(r ** 2))
         return total if np.isfinite(total) else np.inf
 
-    lam = 1e-3
-    current = cost(x_in, x_ex)
-    p = len(x_in)
-    for _ in range(max_iterations):
-        done = False
-        K, D = unpack(x_in)
+    def normal_equations(xi: np.ndarray, xe: np.ndarray) -> tuple[
+            float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+        # One projection per view gives the residuals and both Jacobians.
+        K, D = unpack(xi)
         U = np.zeros((p, p))
         g = np.zeros(p)
-        blocks = []
-        for v, pose, sw in zip(views, x_ex, sqrt_w, strict=True):
-            A, B = project_jacobian(v.object_points, pose[:3], pose[3:], K, D, model)
+        W = np.empty((len(views), p, 6))
+        V = np.empty((len(views), 6, 6))
+        gb = np.empty((len(views), 6))
+        total = 0.0
+        for k, (v, pose, sw) in enumerate(zip(views, xe, sqrt_w, strict=True)):
+            img, A, B = project_with_jacobian(v.object_points, pose[:3], pose[3:], K, D,
+                                              model)
             A = free_jacobian(A, groups) * sw[:, None]
             B = B * sw[:, None]
-            r = (v.image_points - project(v.object_points, pose[:3], pose[3:], K, D,
-                                          model)).ravel() * sw
+            r = (v.image_points - img).ravel() * sw
+            total += float(np.sum(r ** 2))
             U += A.T @ A
             g += A.T @ r
-            blocks.append((A.T @ B, B.T @ B, B.T @ r))
+            W[k] = A.T @ B
+            V[k] = B.T @ B
+            gb[k] = B.T @ r
+        return (total if np.isfinite(total) else np.inf), U, g, W, V, gb
+
+    lam = 1e-3
+    p = len(x_in)
+    eye6 = np.eye(6)
+    current, U, g, W, V, gb = normal_equations(x_in, x_ex)
+    for _ in range(max_iterations):
+        done = False
         improved = False
         while lam < 1e10:
-            S = U + lam * np.diag(np.diag(U))
-            rhs = g.copy()
-            inv_v = []
-            for W, V, gb in blocks:
-                Vi = np.linalg.inv(V + lam * np.diag(np.diag(V)))
-                inv_v.append(Vi)
-                S -= W @ Vi @ W.T
-                rhs -= W @ Vi @ gb
+            # Poses eliminated view by view (Schur complement), all views at once.
+            Vi = np.linalg.inv(V + lam * V * eye6)
+            WVi = W @ Vi
+            S = U + lam * np.diag(np.diag(U)) - np.einsum("npk,nqk->pq", WVi, W)
+            rhs = g - np.einsum("npk,nk->p", WVi, gb)
             try:
                 d_in = np.linalg.solve(S, rhs)
             except np.linalg.LinAlgError:
                 lam *= 10.0
                 continue
-            d_ex = np.array([Vi @ (gb - W.T @ d_in)
-                             for (W, _, gb), Vi in zip(blocks, inv_v, strict=True)])
+            d_ex = np.einsum("nij,nj->ni", Vi, gb - np.einsum("npk,p->nk", W, d_in))
             trial = cost(x_in + d_in, x_ex + d_ex)
             if trial < current:
                 x_in, x_ex = x_in + d_in, x_ex + d_ex
-                done = current - trial < 1e-12 * max(current, 1e-30)
-                current = trial
+                done = current - trial < tolerance * max(current, 1e-30)
                 lam = max(lam / 3.0, 1e-9)
                 improved = True
                 break
             lam *= 4.0
         if not improved or done:
             break
+        current, U, g, W, V, gb = normal_equations(x_in, x_ex)
     K, D = unpack(x_in)
     return K, D, x_ex[:, :3].copy(), x_ex[:, 3:].copy()

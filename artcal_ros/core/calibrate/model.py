@@ -37,7 +37,8 @@ class ViewPoints:
         source: where the image came from (for reports).
         object_points: (M, 3) float64, metres, board frame (z = 0).
         image_points: (M, 2) float64, pixels.
-        marker_ids: (M,) int64, the marker each point belongs to.
+        marker_ids: (M,) int64, the marker each point belongs to (on a chessboard or
+            ChArUco board: the point's own id).
         sharpness: focus measure of the image (NaN if unknown).
         marker_corners_px: (M, 4, 2) float64 pixels, for marker centres: the corners they
             were measured from (so the centres can be corrected for distortion); else None.
@@ -269,17 +270,31 @@ def project_jacobian(object_points: np.ndarray, rvec: np.ndarray, tvec: np.ndarr
         (intrinsic (2M, 4 + n): d pixel / d (fx, fy, cx, cy, dist...),
          extrinsic (2M, 6): d pixel / d (rvec, tvec)); rows alternate x, y per point.
     """
+    _, A, B = project_with_jacobian(object_points, rvec, tvec, camera_matrix, dist_coeffs,
+                                    model)
+    return A, B
+
+
+def project_with_jacobian(object_points: np.ndarray, rvec: np.ndarray, tvec: np.ndarray,
+                          camera_matrix: np.ndarray, dist_coeffs: np.ndarray,
+                          model: str) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """The projection of one view's points and its derivatives, from one OpenCV call.
+
+    Returns:
+        (image points (M, 2) float64 pixels, as :func:`project`; intrinsic (2M, 4 + n)
+        and extrinsic (2M, 6) derivatives, as :func:`project_jacobian`).
+    """
     obj = np.ascontiguousarray(object_points, dtype=np.float64).reshape(-1, 1, 3)
     if model == "equidistant":
-        _, J = cv2.fisheye.projectPoints(obj, np.asarray(rvec, np.float64).reshape(3, 1),
-                                         np.asarray(tvec, np.float64).reshape(3, 1),
-                                         camera_matrix, np.asarray(dist_coeffs).reshape(4, 1))
+        img, J = cv2.fisheye.projectPoints(obj, np.asarray(rvec, np.float64).reshape(3, 1),
+                                           np.asarray(tvec, np.float64).reshape(3, 1),
+                                           camera_matrix, np.asarray(dist_coeffs).reshape(4, 1))
         # fisheye columns: fx fy cx cy k1..k4 rvec(3) tvec(3) alpha
-        return J[:, 0:8], J[:, 8:14]
-    _, J = cv2.projectPoints(obj, np.asarray(rvec, np.float64), np.asarray(tvec, np.float64),
-                             camera_matrix, np.asarray(dist_coeffs, np.float64))
+        return img.reshape(-1, 2), J[:, 0:8], J[:, 8:14]
+    img, J = cv2.projectPoints(obj, np.asarray(rvec, np.float64), np.asarray(tvec, np.float64),
+                               camera_matrix, np.asarray(dist_coeffs, np.float64))
     # pinhole columns: rvec(3) tvec(3) fx fy cx cy dist(n)
-    return J[:, 6:], J[:, 0:6]
+    return img.reshape(-1, 2), J[:, 6:], J[:, 0:6]
 
 
 def estimate_pose(view: ViewPoints, camera_matrix: np.ndarray, dist_coeffs: np.ndarray,
@@ -301,11 +316,8 @@ def estimate_pose(view: ViewPoints, camera_matrix: np.ndarray, dist_coeffs: np.n
                                                np.eye(3), np.zeros(5), flags=cv2.SOLVEPNP_IPPE)
     best: tuple[float, np.ndarray, np.ndarray] | None = None
     for k in range(n):
-        r, t = _refine_pose(view, camera_matrix, dist_coeffs, model,
-                            np.asarray(cand_r[k]).ravel(), np.asarray(cand_t[k]).ravel())
-        err = float(np.sum((view.image_points - project(view.object_points, r, t,
-                                                        camera_matrix, dist_coeffs,
-                                                        model)) ** 2))
+        r, t, err = refine_pose(view, camera_matrix, dist_coeffs, model,
+                                np.asarray(cand_r[k]).ravel(), np.asarray(cand_t[k]).ravel())
         if np.isfinite(err) and (best is None or err < best[0]):
             best = (err, r, t)
     if best is None:
@@ -313,23 +325,36 @@ def estimate_pose(view: ViewPoints, camera_matrix: np.ndarray, dist_coeffs: np.n
     return best[1], best[2]
 
 
-def _refine_pose(view: ViewPoints, K: np.ndarray, dist: np.ndarray, model: str,
-                 rvec: np.ndarray, tvec: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """Gauss-Newton on the 6 pose parameters, steps halved until the error drops."""
+def refine_pose(view: ViewPoints, K: np.ndarray, dist: np.ndarray, model: str,
+                rvec: np.ndarray, tvec: np.ndarray) -> tuple[np.ndarray, np.ndarray, float]:
+    """T_cam_board of one view refined from a starting pose, the intrinsics held fixed.
+
+    Gauss-Newton on the 6 pose parameters in the distorted image, steps halved until the
+    error drops.
+
+    Args:
+        view: the view's points.
+        K: (3, 3); dist: (n,) for ``model``.
+        rvec, tvec: (3,) the starting T_cam_board.
+
+    Returns:
+        (rvec (3,), tvec (3,), sum of squared residuals px^2, inf if not finite).
+    """
     x = np.concatenate([rvec, tvec]).astype(np.float64)
+    obj, img = view.object_points, view.image_points
 
-    def sse(y: np.ndarray) -> float:
-        e = float(np.sum((view.image_points - project(view.object_points, y[:3], y[3:], K,
-                                                      dist, model)) ** 2))
-        return e if np.isfinite(e) else np.inf
+    def sse(e: np.ndarray) -> float:
+        total = float(np.sum(e ** 2))
+        return total if np.isfinite(total) else np.inf
 
-    current = sse(x)
+    projected, _, J = project_with_jacobian(obj, x[:3], x[3:], K, dist, model)
+    r = img - projected
+    current = sse(r)
     for _ in range(20):
-        r = (view.image_points - project(view.object_points, x[:3], x[3:], K, dist, model))
-        _, J = project_jacobian(view.object_points, x[:3], x[3:], K, dist, model)
         step, *_ = np.linalg.lstsq(J, r.ravel(), rcond=None)
         for _half in range(10):
-            trial = sse(x + step)
+            trial = sse(img - project(obj, x[:3] + step[:3], x[3:] + step[3:], K, dist,
+                                      model))
             if trial <= current:
                 break
             step = step / 2.0
@@ -340,4 +365,6 @@ def _refine_pose(view: ViewPoints, K: np.ndarray, dist: np.ndarray, model: str,
         current = trial
         if improvement <= 1e-14 * max(current, 1e-30):
             break
-    return x[:3].copy(), x[3:].copy()
+        projected, _, J = project_with_jacobian(obj, x[:3], x[3:], K, dist, model)
+        r = img - projected
+    return x[:3].copy(), x[3:].copy(), current

@@ -42,11 +42,12 @@ from artcal_ros.core.calibrate.solve import (
 )
 from artcal_ros.core.calibrate.views import (
     POINTS_MODES,
+    GeometryCache,
     check_views,
+    coverage_cells,
     layout_outliers,
     lens_corrected_centers,
     select_views,
-    view_geometry,
     view_points,
     view_problem,
 )
@@ -100,8 +101,8 @@ def _reject(views: list[ViewPoints], res: list[np.ndarray], board: Board, size: 
     if med > max_rms_px(size):
         raise CalibrationError(
             f"the {len(views)} views cannot be fitted together (median view RMS {med:.1f} px): "
-            "the board parameters (board.cols, board.rows, board.marker_length, "
-            "board.marker_separation) or the camera_model are wrong, or the solve started "
+            f"the board parameters ({board.size_parameters}) or the camera_model are wrong, "
+            "or the solve started "
             "badly; add views tilted 20-45 degrees in different directions")
     bad_view = (frac > VIEW_OUTLIER_FRACTION) | (
         view_rms > max(VIEW_OUTLIER_FACTOR * med, OUTLIER_FLOOR_PX))
@@ -244,17 +245,19 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
             usable.append(v)
         else:
             dropped.append(DroppedView(i, det.source, problem))
-    check_views(usable, size, [(d.view_index, d.reason) for d in dropped])
+    # Each view's rough geometry (guessed camera) once, for the checks and the selection.
+    cache = GeometryCache()
+    check_views(usable, size, [(d.view_index, d.reason) for d in dropped], cache=cache)
     if len(usable) > max_views:
         say(f"selecting {max_views} of {len(usable)} views")
-        keep = set(select_views(usable, size, max_views))
+        keep = set(select_views(usable, size, max_views, cache=cache))
         for k, v in enumerate(usable):
             if k not in keep:
                 dropped.append(DroppedView(v.index, v.source, "not selected (similar views kept)"))
         usable = [v for k, v in enumerate(usable) if k in keep]
     outliers: list[np.ndarray] = []
     usable, points_dropped = _layout_check(usable, board, dropped, outliers)
-    check_views(usable, size, [(d.view_index, d.reason) for d in dropped])
+    check_views(usable, size, [(d.view_index, d.reason) for d in dropped], cache=cache)
 
     say(f"solving {model} from {len(usable)} views")
     views = usable
@@ -268,20 +271,21 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
             views = [lens_corrected_centers(v, solution_camera(sol, size))
                      for v in views]
             sol, _ = solve(views, size, model, options=options, initial=sol,
-                           weighted=weighted)
+                           weighted=weighted, poses=(sol.rvecs, sol.tvecs))
     for _round in range(8):
         res = residuals(views, sol)
         kept, removed = _reject(views, res, board, size, dropped, outliers)
         if len(kept) == len(views) and removed == 0:
             break
         points_dropped += removed
-        check_views(kept, size, [(d.view_index, d.reason) for d in dropped])
-        views = kept
+        check_views(kept, size, [(d.view_index, d.reason) for d in dropped], cache=cache)
+        previous, views = views, kept
         say(f"re-solving without outliers ({len(views)} views, {points_dropped} points dropped)")
-        sol, _ = solve(views, size, model, options=options, initial=sol, weighted=weighted)
+        sol, _ = solve(views, size, model, options=options, initial=sol, weighted=weighted,
+                       poses=_poses_of(views, previous, sol))
     res = residuals(views, sol)
     rms, std, worst = _stats(res)
-    _sanity(sol, views, size, rms)
+    _sanity(sol, views, size, rms, board)
 
     say("estimating uncertainty")
     cov, _sigma = intrinsic_covariance(views, sol, res, weighted=weighted)
@@ -291,8 +295,7 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
     if cross_validation_folds > 1:
         say(f"{cross_validation_folds}-fold cross-validation")
         holdout = cross_validate(views, sol, folds=cross_validation_folds, weighted=weighted)
-    geo = view_geometry(views, size, sol.camera_matrix)
-    coverage = float(np.mean(geo.cells.any(axis=0)))
+    coverage = float(np.mean(coverage_cells(views, size).any(axis=0)))
     warnings = _warnings(sol, size, views, std_dev, effects, rms, holdout, coverage)
     per_view = np.array([float(np.sqrt(np.mean(np.sum(r ** 2, axis=1)))) for r in res])
     return CalibrationResult(
@@ -312,6 +315,15 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         solve_time_s=time.monotonic() - start)
 
 
+def _poses_of(views: Sequence[ViewPoints], solved: Sequence[ViewPoints],
+              sol: Solution) -> tuple[np.ndarray, np.ndarray]:
+    """(rvecs (V, 3), tvecs (V, 3)) of ``views`` in ``sol``, the solve of ``solved`` (a
+    superset of them: the same views, some with fewer points)."""
+    at = {v.index: k for k, v in enumerate(solved)}
+    rows = [at[v.index] for v in views]
+    return sol.rvecs[rows], sol.tvecs[rows]
+
+
 def _named_std_devs(free: tuple[str, ...], std_dev: np.ndarray) -> dict[str, float]:
     """1-sigma by parameter name; a tied focal length (fx = fy) is listed as both."""
     out: dict[str, float] = {}
@@ -329,7 +341,7 @@ def _full_dist(sol: Solution) -> np.ndarray:
 
 
 def _sanity(sol: Solution, views: Sequence[ViewPoints], size: tuple[int, int],
-            rms: float) -> None:
+            rms: float, board: Board) -> None:
     """Raise CalibrationError for a camera that cannot be right."""
     w, h = size
     K = sol.camera_matrix
@@ -337,8 +349,8 @@ def _sanity(sol: Solution, views: Sequence[ViewPoints], size: tuple[int, int],
     if rms > limit:
         raise CalibrationError(
             f"the best {sol.model} fit leaves {rms:.2f} px RMS reprojection error (> "
-            f"{limit:.1f} px): check the board parameters (board.cols, board.rows, "
-            "board.marker_length, board.marker_separation) and the camera_model")
+            f"{limit:.1f} px): check the board parameters ({board.size_parameters}) and the "
+            "camera_model")
     if not (0 <= K[0, 2] <= w and 0 <= K[1, 2] <= h):
         raise CalibrationError(
             f"the solve put the principal point at ({K[0, 2]:.0f}, {K[1, 2]:.0f}), outside the "

@@ -62,6 +62,15 @@ def busy_threads() -> list[threading.Thread]:
     return SOLVE_THREADS.alive()
 
 
+class OutputError(ArtcalError):
+    """Calibrated, but the calibration file could not be written (the message names the
+    path and the reason; ``result`` is the calibration)."""
+
+    def __init__(self, message: str, result: CalibrationResult) -> None:
+        super().__init__(message)
+        self.result = result
+
+
 @dataclass(frozen=True)
 class SolveOutcome:
     """What ``~/calibrate`` answers: success, a one-line message, and the result if any."""
@@ -156,7 +165,7 @@ def solve_session(views: Sequence[Detections], board: Board, image_size: tuple[i
     Raises:
         CalibrationError: the views cannot support a solve; nothing is written (an
             existing file is left as it was).
-        ArtcalError: the file cannot be written.
+        OutputError: calibrated, but the file cannot be written (the result is in it).
     """
     from artcal_ros.core.calibrate.pipeline import calibrate
     from artcal_ros.core.camera_info import write_camera_info_yaml
@@ -167,7 +176,10 @@ def solve_session(views: Sequence[Detections], board: Board, image_size: tuple[i
         kwargs["max_views"] = int(max_views)
     result = calibrate(list(views), board, image_size=image_size, progress=progress, **kwargs)
     path = Path(output).expanduser() if output is not None else output_path(params)
-    write_camera_info_yaml(path, result, camera_name=str(params["camera_name"]))
+    try:
+        write_camera_info_yaml(path, result, camera_name=str(params["camera_name"]))
+    except ArtcalError as e:
+        raise OutputError(str(e), result) from None
     return Session(result, path, time.monotonic() - start)
 
 
@@ -223,6 +235,8 @@ def run_solve(views: Sequence[Detections], board: Board, image_size: tuple[int, 
             box["value"] = solve_session(views, board, image_size, params, progress=progress)
         except CancelledError:
             box["error"] = "cancelled"
+        except OutputError as e:
+            box["unsaved"] = e
         except ArtcalError as e:
             box["error"] = str(e)
         except OSError as e:
@@ -240,5 +254,9 @@ def run_solve(views: Sequence[Detections], board: Board, image_size: tuple[int, 
             return SolveOutcome(False, "shutting down; calibration abandoned")
     if "error" in box:
         return SolveOutcome(False, f"calibration failed: {box['error']}")
+    if "unsaved" in box:  # calibrated: the answer says so, the node still publishes it
+        unsaved: OutputError = box["unsaved"]
+        return SolveOutcome(False, f"calibrated but NOT saved: {unsaved}; "
+                            f"{unsaved.result.summary()}", unsaved.result)
     session: Session = box["value"]
     return SolveOutcome(True, session_summary(session, readiness=readiness), session.result)

@@ -35,6 +35,9 @@ __all__ = ["DIST_NAMES", "INTRINSIC_NAMES", "MODELS", "Solution", "SolveOptions"
            "project_jacobian", "residuals", "solve"]
 
 _CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 100, 1e-10)
+# A fit that only starts another (the staged fits of the central points) stops sooner: the
+# fit after it moves every parameter by far more than this settles.
+_START_CRITERIA = (cv2.TERM_CRITERIA_COUNT + cv2.TERM_CRITERIA_EPS, 30, 1e-6)
 _DEFAULT = SolveOptions()
 _FIX_K = (cv2.CALIB_FIX_K1, cv2.CALIB_FIX_K2, cv2.CALIB_FIX_K3, cv2.CALIB_FIX_K4,
           cv2.CALIB_FIX_K5, cv2.CALIB_FIX_K6)
@@ -112,7 +115,9 @@ def _initial_fisheye(views: list[ViewPoints], image_size: tuple[int, int],
 
 def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *,
           options: SolveOptions = _DEFAULT, initial: Solution | None = None,
-          weighted: bool = False) -> tuple[Solution, np.ndarray | None]:
+          weighted: bool = False,
+          poses: tuple[np.ndarray, np.ndarray] | None = None) -> tuple[Solution,
+                                                                     np.ndarray | None]:
     """Fit intrinsics and poses to every point of ``views`` (no outlier handling).
 
     Without ``initial`` the fit grows outwards from the image centre: first the points
@@ -127,6 +132,9 @@ def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *,
         options: what the solve holds fixed (every stage holds it).
         initial: start from these intrinsics.
         weighted: weight each point by 1 / sigma^2 (``ViewPoints.sigma_px``).
+        poses: with ``initial``, (rvecs (V, 3), tvecs (V, 3)) T_cam_board of ``views`` to
+            start from (a previous solve of nearly the same points). A weighted solve then
+            goes straight to the point-weighted LM, which OpenCV's solve would only start.
 
     Returns:
         (solution, OpenCV's standard deviations of the intrinsics or None).
@@ -134,16 +142,22 @@ def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *,
     Raises:
         CalibrationError: the solver did not converge to a usable camera.
     """
+    if initial is not None and poses is not None and (weighted or model == "equidistant"):
+        return _refine(views, image_size, model, options, initial, poses, weighted)
     if initial is None:
         w, h = image_size
         center = np.array([(w - 1) / 2.0, (h - 1) / 2.0])
         half_diag = 0.5 * float(np.hypot(w, h))
+        # Positions in ``views`` of the views the last stage solved, when it solved the
+        # final model itself (its poses can start the final fit).
+        solved: list[int] | None = None
         for stage, frac in enumerate((0.5, 0.75)):
-            sub = []
-            for v in views:
+            sub, at = [], []
+            for k, v in enumerate(views):
                 near = np.linalg.norm(v.image_points - center, axis=1) < frac * half_diag
                 if near.sum() >= 8:
                     sub.append(v.subset(near))
+                    at.append(k)
             if len(sub) < 3 or sum(len(v) for v in sub) == sum(len(v) for v in views):
                 continue
             stage_model, stage_options = (("plumb_bob", _first_stage(model, options))
@@ -151,11 +165,61 @@ def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *,
                                           else (model, options))
             try:
                 initial, _ = _solve_once(sub, image_size, stage_model, options=stage_options,
-                                         initial=initial)
+                                         initial=initial, criteria=_START_CRITERIA)
+                solved = at if (stage_model, stage_options) == (model, options) else None
             except CalibrationError:
-                initial = None
+                initial, solved = None, None
+        if initial is not None and solved is not None and weighted and model != "equidistant":
+            # OpenCV's solve of every point (unweighted) would only start the weighted LM:
+            # start it from the last stage instead, which fitted the same model to each
+            # view's central points.
+            try:
+                return _refine(views, image_size, model, options, initial,
+                               _stage_poses(views, solved, initial), weighted)
+            except (CalibrationError, cv2.error, np.linalg.LinAlgError):
+                pass
     return _solve_once(views, image_size, model, options=options, initial=initial,
                        weighted=weighted)
+
+
+def _refine(views: list[ViewPoints], image_size: tuple[int, int], model: str,
+            options: SolveOptions, initial: Solution, poses: tuple[np.ndarray, np.ndarray],
+            weighted: bool) -> tuple[Solution, None]:
+    """The bundle adjustment alone, from ``initial``'s intrinsics and the given poses."""
+    free = free_parameters(model, options=options)
+    K0, D0 = constrain(initial.camera_matrix, initial.dist_coeffs, model, image_size, options)
+    K, dist, rv, tv = bundle_adjust(views, K0, D0, model, free=free, weighted=weighted,
+                                    poses=poses)
+    return _checked(K, dist, rv, tv, model, free), None
+
+
+def _stage_poses(views: list[ViewPoints], solved: list[int],
+                 stage: Solution) -> tuple[np.ndarray, np.ndarray]:
+    """(rvecs (V, 3), tvecs (V, 3)) of every view: ``stage``'s pose for the views it
+    solved (positions ``solved``), a single-view fit with its intrinsics for the rest."""
+    rvecs = np.empty((len(views), 3))
+    tvecs = np.empty((len(views), 3))
+    have = dict(zip(solved, range(len(solved)), strict=True))
+    for k, v in enumerate(views):
+        if k in have:
+            rvecs[k], tvecs[k] = stage.rvecs[have[k]], stage.tvecs[have[k]]
+        else:
+            rvecs[k], tvecs[k] = estimate_pose(v, stage.camera_matrix, stage.dist_coeffs,
+                                               stage.model)
+    return rvecs, tvecs
+
+
+def _checked(K: np.ndarray, dist: np.ndarray, rv: Any, tv: Any, model: str,
+             free: tuple[str, ...]) -> Solution:
+    """The solution, or CalibrationError if the solver diverged."""
+    K = np.asarray(K, dtype=np.float64)
+    dist = np.asarray(dist, dtype=np.float64).ravel()
+    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(dist)) and K[0, 0] > 0 and K[1, 1] > 0):
+        raise CalibrationError(
+            f"the {model} solver diverged (non-finite or negative focal length); add views "
+            "that tilt the board in different directions and fill the image corners")
+    return Solution(K, dist, model, np.asarray(rv, np.float64).reshape(-1, 3),
+                    np.asarray(tv, np.float64).reshape(-1, 3), free)
 
 
 def _first_stage(model: str, options: SolveOptions) -> SolveOptions:
@@ -166,7 +230,9 @@ def _first_stage(model: str, options: SolveOptions) -> SolveOptions:
 
 def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str, *,
                 options: SolveOptions = _DEFAULT, initial: Solution | None = None,
-                weighted: bool = False) -> tuple[Solution, np.ndarray | None]:
+                weighted: bool = False,
+                criteria: tuple[int, int, float] = _CRITERIA) -> tuple[Solution,
+                                                                       np.ndarray | None]:
     """One fit of intrinsics and poses to every point of ``views``.
 
     Args:
@@ -176,6 +242,8 @@ def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str
         options: what the solve holds fixed.
         initial: start from these intrinsics instead of OpenCV's initialisation (moved
             onto the constraints of ``options`` first).
+        weighted: refine with the point-weighted LM after OpenCV's solve.
+        criteria: OpenCV's termination criteria (the default: to convergence).
 
     Returns:
         (solution, OpenCV's standard deviations of the intrinsics or None).
@@ -210,7 +278,8 @@ def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str
                 # Higher-order terms free from the start often send OpenCV's solve into a
                 # wrong minimum; start them from the k1 k2 p1 p2 fit instead.
                 initial, _ = _solve_once(views, image_size, "plumb_bob",
-                                         options=_first_stage(model, options))
+                                         options=_first_stage(model, options),
+                                         criteria=_START_CRITERIA)
             if initial is not None:
                 # With a guess OpenCV holds fixed terms at their given values: give it the
                 # held ones (principal point, fx = fy, zeros).
@@ -224,15 +293,15 @@ def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str
                 K0, D0 = np.eye(3), np.zeros(14)
             _, K, D, rv, tv, std_i, _, _ = cv2.calibrateCameraExtended(
                 [o.astype(np.float32) for o in obj], [i.astype(np.float32) for i in img],
-                image_size, K0, D0, flags=flags, criteria=_CRITERIA)
+                image_size, K0, D0, flags=flags, criteria=criteria)
             dist = np.asarray(D, dtype=np.float64).ravel()[:n]
             std_all = np.asarray(std_i, dtype=np.float64).ravel()
             std = np.concatenate([std_all[:4], std_all[4:4 + n]])
     except cv2.error as e:
         raise CalibrationError(
             f"the {model} solver failed ({e.err.strip() if hasattr(e, 'err') else e}); "
-            "check that the board parameters (board.cols, board.rows, board.marker_length, "
-            "board.marker_separation) match the printed board, and add views that tilt the "
+            "check that the board parameters (board.cols, board.rows and its lengths) match "
+            "the printed board, and add views that tilt the "
             "board in different directions") from None
     K = np.asarray(K, dtype=np.float64)
     if weighted and model != "equidistant" and np.all(np.isfinite(K)):
@@ -242,13 +311,7 @@ def _solve_once(views: list[ViewPoints], image_size: tuple[int, int], model: str
             poses=(np.asarray(rv, np.float64).reshape(-1, 3),
                    np.asarray(tv, np.float64).reshape(-1, 3)))
         std = None
-    if not (np.all(np.isfinite(K)) and np.all(np.isfinite(dist)) and K[0, 0] > 0 and K[1, 1] > 0):
-        raise CalibrationError(
-            f"the {model} solver diverged (non-finite or negative focal length); add views "
-            "that tilt the board in different directions and fill the image corners")
-    sol = Solution(K, dist, model, np.asarray(rv, np.float64).reshape(-1, 3),
-                   np.asarray(tv, np.float64).reshape(-1, 3), free)
-    return sol, std
+    return _checked(K, dist, rv, tv, model, free), std
 
 
 def residuals(views: list[ViewPoints], sol: Solution) -> list[np.ndarray]:

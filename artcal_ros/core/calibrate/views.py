@@ -20,12 +20,19 @@ from artcal_ros.core.camera import CameraModel
 
 # The view geometry (guessed camera, pose, coverage grid and threshold) is defined once, in
 # core.coverage, for the node's readiness and for the selection and checks here alike.
-from artcal_ros.core.coverage import COVERAGE_GRID, POINTS_MODES
+from artcal_ros.core.coverage import (
+    COVERAGE_GRID,
+    POINTS_MODES,
+    ViewGeometry,
+    grid_cells,
+    point_correspondences,
+)
 from artcal_ros.core.coverage import view_geometry as one_view_geometry
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import CalibrationError
 
 MIN_MARKERS_PER_VIEW = 6  # enough for a homography plus redundancy to see distortion
+MIN_POINTS_PER_VIEW = 8   # the same for single points (chessboard, charuco corners)
 MIN_VIEWS = 3  # focal lengths and principal point need three differently tilted views
 MIN_TILT_SPREAD_DEG = 5.0  # below this, every view shows the board at the same angle
 
@@ -36,12 +43,20 @@ def view_points(det: Detections, board: Board, points: str, index: int) -> ViewP
     Args:
         det: the markers found in the image.
         board: the board they belong to (ids not on it are ignored).
-        points: ``centers`` (one point per marker) or ``corners`` (four).
+        points: ``centers`` (one point per marker) or ``corners`` (four); boards with
+            points (chessboard, charuco) always give their points, ``marker_ids`` then
+            holding each point's id.
         index: position of the view in the caller's list.
     """
     if points not in POINTS_MODES:
         raise CalibrationError(f"points mode {points!r} is not one of {', '.join(POINTS_MODES)}")
-    keep = np.array([board.has_id(int(i)) for i in det.ids], dtype=bool)
+    if board.has_points:
+        # chessboard and charuco: the saddle points, whatever ``points`` says
+        pids, pts = point_correspondences(det, board)
+        ok = np.isin(det.point_ids, pids)
+        return ViewPoints(index, det.source, board.object_points(pids), pts, pids,
+                          det.sharpness, sigma_px=det.point_sigma_px[ok])
+    keep = board.has_ids(det.ids)
     if points == "centers":
         img = det.centers_px[keep]
         ok = np.all(np.isfinite(img), axis=1)
@@ -103,7 +118,7 @@ def layout_outliers(view: ViewPoints, board: Board) -> np.ndarray:
     pos = np.zeros((k, 2))
     np.add.at(pos, inverse, view.image_points)
     pos /= np.bincount(inverse, minlength=k)[:, None]
-    rc = np.array([board.cell_of(int(i)) for i in ids], dtype=np.float64).reshape(-1, 2)
+    rc = board.feature_cells(ids).astype(np.float64).reshape(-1, 2)
     # One affine fit per marker, all at once: normal equations summed over neighbours.
     near = np.max(np.abs(rc[:, None, :] - rc[None, :, :]), axis=2) <= 2
     np.fill_diagonal(near, False)
@@ -123,11 +138,13 @@ def layout_outliers(view: ViewPoints, board: Board) -> np.ndarray:
 def view_problem(view: ViewPoints, board: Board) -> str | None:
     """Why this view cannot take part in a solve, or None if it can."""
     ids = np.unique(view.marker_ids)
-    if len(ids) < MIN_MARKERS_PER_VIEW:
-        return f"{len(ids)} marker(s), needs at least {MIN_MARKERS_PER_VIEW}"
-    rc = np.array([board.cell_of(int(i)) for i in ids])
+    what = "point" if board.has_points else "marker"
+    least = MIN_POINTS_PER_VIEW if board.has_points else MIN_MARKERS_PER_VIEW
+    if len(ids) < least:
+        return f"{len(ids)} {what}(s), needs at least {least}"
+    rc = board.feature_cells(ids)
     if len(np.unique(rc[:, 0])) < 2 or len(np.unique(rc[:, 1])) < 2:
-        return "its markers lie on one line of the board (needs two rows and two columns)"
+        return f"its {what}s lie on one line of the board (needs two rows and two columns)"
     return None
 
 
@@ -150,17 +167,21 @@ class ViewsGeometry:
 
 
 def view_geometry(views: Sequence[ViewPoints], image_size: tuple[int, int],
-                  camera_matrix: np.ndarray | None = None) -> ViewsGeometry:
+                  camera_matrix: np.ndarray | None = None, *,
+                  cache: GeometryCache | None = None) -> ViewsGeometry:
     """Rough pose and coverage of each view (the one definition in core.coverage), stacked.
 
     Args:
         views: the views.
         image_size: (width, height), pixels.
         camera_matrix: (3, 3) a better camera than the guessed one, if known.
+        cache: geometry already computed: reused for the views it holds unchanged (with
+            the same ``image_size`` and ``camera_matrix``), filled in for the others.
     """
     gx, gy = COVERAGE_GRID
-    each = [one_view_geometry(v.object_points, v.image_points, image_size, camera_matrix)
-            for v in views]
+    if cache is None:
+        cache = GeometryCache()
+    each = [cache.get(v, image_size, camera_matrix) for v in views]
     if not each:
         return ViewsGeometry(np.zeros((0, 3)), np.zeros((0, 2)), np.zeros(0),
                              np.zeros((0, gx * gy), dtype=bool))
@@ -168,6 +189,42 @@ def view_geometry(views: Sequence[ViewPoints], image_size: tuple[int, int],
                          np.stack([g.center_px for g in each]),
                          np.array([g.log_distance for g in each]),
                          np.stack([g.cells for g in each]))
+
+
+class GeometryCache:
+    """The geometry of views already seen, so a pipeline computes each view's once.
+
+    A view counts as already seen only as the very same :class:`ViewPoints` object (views
+    are frozen; a view with points removed or moved is a new object, and gets its own).
+    """
+
+    def __init__(self) -> None:
+        self._seen: dict[tuple[int, tuple[int, int], bytes | None],
+                         tuple[ViewPoints, ViewGeometry]] = {}
+
+    def get(self, view: ViewPoints, image_size: tuple[int, int],
+            camera_matrix: np.ndarray | None = None) -> ViewGeometry:
+        """The geometry of ``view`` from ``camera_matrix`` (None: the guessed camera),
+        computed on first sight."""
+        key = (id(view), (int(image_size[0]), int(image_size[1])),
+               None if camera_matrix is None
+               else np.asarray(camera_matrix, np.float64).tobytes())
+        hit = self._seen.get(key)
+        if hit is not None and hit[0] is view:
+            return hit[1]
+        g = one_view_geometry(view.object_points, view.image_points, image_size,
+                              camera_matrix)
+        # Holding the view keeps its id from being reused by another object.
+        self._seen[key] = (view, g)
+        return g
+
+
+def coverage_cells(views: Sequence[ViewPoints], image_size: tuple[int, int]) -> np.ndarray:
+    """(V, C) bool: the :data:`COVERAGE_GRID` cells each view's points fall in (no pose)."""
+    gx, gy = COVERAGE_GRID
+    if not views:
+        return np.zeros((0, gx * gy), dtype=bool)
+    return np.stack([grid_cells(v.image_points, image_size) for v in views])
 
 
 def tilt_spread_deg(normals: np.ndarray) -> float:
@@ -179,12 +236,14 @@ def tilt_spread_deg(normals: np.ndarray) -> float:
 
 
 def check_views(views: Sequence[ViewPoints], image_size: tuple[int, int],
-                dropped: Sequence[tuple[int, str]]) -> None:
+                dropped: Sequence[tuple[int, str]], *,
+                cache: GeometryCache | None = None) -> None:
     """Raise CalibrationError if ``views`` cannot pin down a camera; say what to add.
 
     Args:
         views: the usable views.
         dropped: (index, reason) of the views already set aside, for the message.
+        cache: the views' geometry already computed (the guessed camera's).
     """
     if len(views) < MIN_VIEWS:
         why = ""
@@ -195,7 +254,7 @@ def check_views(views: Sequence[ViewPoints], image_size: tuple[int, int],
             f"{len(views)} usable view(s){why}; at least {MIN_VIEWS} are needed, each with "
             f">= {MIN_MARKERS_PER_VIEW} markers over two rows and columns of the board. Add "
             "views with the board tilted 20-45 degrees in different directions")
-    geo = view_geometry(views, image_size)
+    geo = view_geometry(views, image_size, cache=cache)
     spread = tilt_spread_deg(geo.normals)
     if spread < MIN_TILT_SPREAD_DEG:
         raise CalibrationError(
@@ -206,7 +265,8 @@ def check_views(views: Sequence[ViewPoints], image_size: tuple[int, int],
 
 
 def select_views(views: Sequence[ViewPoints], image_size: tuple[int, int], max_views: int,
-                 *, camera_matrix: np.ndarray | None = None) -> list[int]:
+                 *, camera_matrix: np.ndarray | None = None,
+                 cache: GeometryCache | None = None) -> list[int]:
     """Choose at most ``max_views`` diverse views (positions into ``views``).
 
     Greedy: start from the view with the most points, then repeatedly add the view that
@@ -220,6 +280,7 @@ def select_views(views: Sequence[ViewPoints], image_size: tuple[int, int], max_v
         image_size: (width, height), pixels.
         max_views: the bound.
         camera_matrix: (3, 3) a better guess of the camera than the default, if known.
+        cache: the views' geometry already computed.
 
     Returns:
         Sorted positions into ``views``.
@@ -227,7 +288,7 @@ def select_views(views: Sequence[ViewPoints], image_size: tuple[int, int], max_v
     n = len(views)
     if n <= max_views:
         return list(range(n))
-    geo = view_geometry(views, image_size, camera_matrix)
+    geo = view_geometry(views, image_size, camera_matrix, cache=cache)
     counts = np.array([len(v) for v in views], dtype=np.float64)
     sharp = np.array([v.sharpness for v in views], dtype=np.float64)
     candidates = np.ones(n, dtype=bool)

@@ -1,4 +1,5 @@
-"""Marker detection: from an image to identified, sub-pixel marker corners and centers.
+"""Detection: from an image to identified, sub-pixel marker corners and centers, and the
+saddle points of chessboard and ChArUco boards.
 
 The pipeline (:mod:`~artcal_ros.core.detect.detector`) runs the stages front to
 back: ``image`` (8-bit grey for the quad finder, linear light for everything
@@ -11,16 +12,20 @@ the lens models, ``tone`` the tone curve (estimated from the edge fits), ``edge_
 the per-view edge shift removed from the corners. The hot loops are numba
 kernels (compiled on first use and cached on disk); ``linalg`` has their small
 solves, ``workers`` the threads the model fit runs on (``ARTCAL_THREADS``, default 2).
+A chessboard goes to ``chessboard``
+(OpenCV's grid finders, ids from the squares' colours); a ChArUco board runs the marker
+pipeline, then ``charuco`` places its corners from the markers. Both refine their corners
+with ``saddle``, a fit of the blurred X-corner model in linear light.
 
 Imports run one way, down these layers, never up or sideways (no cycles, also
 none inside functions)::
 
     1  detector
-    2  candidates
+    2  candidates   chessboard   charuco
     3  decode   edges   verify
     4  plumb    centers
     5  sides
-    6  step_model   lens   image   patterns   profiles   tone   edge_shift
+    6  step_model   saddle   lens   image   patterns   profiles   tone   edge_shift
     7  sampling   linalg   workers
 """
 

@@ -1,5 +1,9 @@
 """The detection pipeline: candidate quads, board-aware decoding, sub-pixel corners and centers.
 
+A chessboard goes to :mod:`artcal_ros.core.detect.chessboard` instead (no markers); a
+ChArUco board runs the marker pipeline below with its markers, then
+:mod:`artcal_ros.core.detect.charuco` measures its corners from them.
+
 Pipeline for one image:
 
 1. Candidate quads and ids from OpenCV's ArUco detector (both polarities when the
@@ -43,6 +47,8 @@ from artcal_ros.core.board import Board
 from artcal_ros.core.camera import CameraModel, HasCamera
 from artcal_ros.core.detect.candidates import CandidateFinder
 from artcal_ros.core.detect.centers import diagonal_centers
+from artcal_ros.core.detect.charuco import charuco_corners
+from artcal_ros.core.detect.chessboard import detect_chessboard
 from artcal_ros.core.detect.edge_shift import (
     MarkerGrowth,
     compensate,
@@ -174,7 +180,7 @@ def _clear_of_edge(corners: np.ndarray, w: int, h: int, clear: float) -> np.ndar
 
 
 class Detector:
-    """A reusable marker detector for one board.
+    """A reusable detector for one board (markers, and points where the board has them).
 
     Args:
         board: the calibration board (its dictionary, ids and polarity).
@@ -184,22 +190,29 @@ class Detector:
     def __init__(self, board: Board, config: DetectorConfig | None = None) -> None:
         self.board = board
         self.config = config or DetectorConfig()
-        self._candidates = CandidateFinder(
-            board, adaptive_window_max=self.config.adaptive_window_max,
-            decode_rejected=self.config.decode_rejected, min_side_px=self.config.min_side_px)
+        self._candidates: CandidateFinder | None = None
+        if board.n_markers:
+            self._candidates = CandidateFinder(
+                board, adaptive_window_max=self.config.adaptive_window_max,
+                decode_rejected=self.config.decode_rejected,
+                min_side_px=self.config.min_side_px)
         self._lens_pool = LensPool()
         self._tone_pool = TonePool()
+        # ChArUco markers sit sqrt(2) squares apart at the closest (see neighbour_support)
+        self._grow_to: float | None = None
+        if board.board_type == "charuco":
+            self._grow_to = 0.45 * np.sqrt(2.0) * board.square_length / board.marker_length
         # quiet zone around a marker's border, in modules (mixed boards: half the gap)
-        gap = board.marker_separation / board.module_length
-        self._quiet_modules = 0.5 * gap if board.polarity == "mixed" else gap
+        self._quiet_modules = board.quiet_zone_m / board.module_length if board.bits else 0.0
 
     def _outer_edges(self, ids: np.ndarray) -> np.ndarray | None:
-        """Sides whose narrow quiet zone ends at a known edge: the next tile of a mixed board.
+        """Sides whose narrow quiet zone ends at a known edge: the next tile of a mixed board,
+        the black square next to a ChArUco marker's white square.
 
-        (On single-polarity boards the quiet zone is a whole gap wide and the
+        (On single-polarity marker grids the quiet zone is a whole gap wide and the
         edge window stops before it ends.)
         """
-        if self.board.polarity != "mixed":
+        if not self.board.tiles_touch:
             return None
         return outer_neighbours(self.board, ids)
 
@@ -303,6 +316,12 @@ class Detector:
         probing = gamma == 0 and not self._tone_pool.settled
         curve = ToneCurve("power", gamma) if gamma > 0 else self._tone_pool.estimate().curve
         lin = curve.linearise(gray)
+        # a chessboard has no marker borders to estimate the tone curve from: the
+        # configured curve or the pool's (gamma 2.2 until markers say otherwise)
+        if self._candidates is None:     # a chessboard: points only
+            pids, pts, psig = detect_chessboard(gray8, lin, self.board)
+            return replace(Detections.empty((w, h), source), sharpness=sharpness,
+                           point_ids=pids, points_px=pts, point_sigma_px=psig)
         bits = self.board.bits
         quads, ids = self._candidates.find(gray8, lin)
         if len(ids) == 0:
@@ -348,7 +367,8 @@ class Detector:
         corners = np.asarray(corners, dtype=np.float64)
 
         errors = code_errors(lin, corners, dark, ids, self.board)
-        support = neighbour_support(corners, ids, self.board, self.config.neighbour_tolerance)
+        support = neighbour_support(corners, ids, self.board, self.config.neighbour_tolerance,
+                                    self._grow_to)
         ok = (errors <= self.config.max_bit_errors) & (support > 0)
         if self.config.max_bit_errors_isolated is not None:
             ok |= (support == 0) & (errors <= self.config.max_bit_errors_isolated)
@@ -358,12 +378,18 @@ class Detector:
 
         centers, center_sigma = diagonal_centers(corners, sigma, lens)
         shift = float("nan")
-        if self.config.edge_shift and self.config.refine_edges:
+        # (a ChArUco board's markers are not on one pitch: its corners come from the saddles)
+        if (self.config.edge_shift and self.config.refine_edges
+                and self.board.board_type == "marker_grid"):
             corners, shift = self._remove_edge_shift(corners, centers, ids,
                                                      lens if lens is not None else fit_lens)
         order = np.argsort(ids)
-        return Detections(ids[order], corners[order], centers[order], (w, h),
-                          sigma[order], center_sigma[order], sharpness, source, shift)
+        dets = Detections(ids[order], corners[order], centers[order], (w, h),
+                          sigma[order], center_sigma[order], sharpness, source,
+                          edge_shift_px=shift)
+        if self.board.board_type == "charuco":
+            return dets.with_points(*charuco_corners(lin, self.board, dets.ids, dets.corners_px))
+        return dets
 
 
 def detect(image: np.ndarray, board: Board, *, config: DetectorConfig | None = None,

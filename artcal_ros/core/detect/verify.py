@@ -118,7 +118,7 @@ def code_errors(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, ids: np.
 
 
 def neighbour_support(corners: np.ndarray, ids: np.ndarray, board: Board,
-                      tolerance: float) -> np.ndarray:
+                      tolerance: float, grow_to: float | None = None) -> np.ndarray:
     """(M,) int: how many image neighbours confirm each marker's position on the board.
 
     Each marker's homography (board plane -> image, from its own four corners)
@@ -133,6 +133,12 @@ def neighbour_support(corners: np.ndarray, ids: np.ndarray, board: Board,
         ids: (M,) marker ids.
         board: the calibration board.
         tolerance: largest prediction error of a supporting neighbour, marker sides.
+        grow_to: where markers are small against their spacing (ChArUco), a marker's own
+            homography extrapolates poorly to its neighbours (its corner errors grow with
+            the square of the distance): the tolerance then grows as
+            ``(board distance / (4/3 marker sides))^2``, up to ``grow_to`` marker sides
+            (keep it below half the distance of the nearest other marker position, so a
+            wrong id still contradicts).
     """
     M = len(ids)
     if M == 0:
@@ -148,8 +154,13 @@ def neighbour_support(corners: np.ndarray, ids: np.ndarray, board: Board,
     err = np.linalg.norm(pred - actual[None, :, :], axis=2) / size[:, None]
     dist = np.linalg.norm(centers_img[:, None, :] - centers_img[None, :, :], axis=2)
     near = (dist < 3.0 * size[:, None]) & ~np.eye(M, dtype=bool)
-    agree = (near & (err < tolerance)).sum(axis=1)
-    disagree = (near & ~(err < tolerance)).sum(axis=1)
+    tol = np.full((M, M), tolerance)
+    if grow_to is not None:
+        sides = (np.linalg.norm(obj_centers[:, None] - obj_centers[None], axis=2)
+                 / board.marker_length)
+        tol = np.clip(tolerance * (sides / (4.0 / 3.0)) ** 2, tolerance, max(grow_to, tolerance))
+    agree = (near & (err < tol)).sum(axis=1)
+    disagree = (near & ~(err < tol)).sum(axis=1)
     out = agree.astype(np.intp)
     out[(disagree > 0) & (disagree >= agree)] = -1
     return out

@@ -1,0 +1,130 @@
+"""Chessboard and ChArUco boards through the CLI and the live collection: artcal board at exact
+scale, artcal synth -> detect --json -> calibrate round trips against truth, camera_calibration's
+--size/--square, and the node's collector taking views from them."""
+
+from __future__ import annotations
+
+import json
+import time
+from pathlib import Path
+
+import cv2
+import numpy as np
+import pytest
+import yaml
+
+from artcal_ros import Board
+from artcal_ros.cli.main import main
+from artcal_ros.core.coverage import CoverageConfig, ViewCollector
+from artcal_ros.core.detect import Detector
+from artcal_ros.core.live import LiveDetection
+from artcal_ros.core.printable import board_to_png_px, write_printable
+from artcal_ros.synth import load_truth
+from artcal_ros.synth.camera import Camera
+from artcal_ros.synth.dataset import write_dataset
+
+CHESS_ARGS = ["--set", "board.type=chessboard", "--set", "board.cols=9", "--set",
+              "board.rows=6", "--set", "board.square_length=0.04"]
+CHARUCO_ARGS = ["--set", "board.type=charuco", "--set", "board.cols=7", "--set",
+                "board.rows=5", "--set", "board.square_length=0.05", "--set",
+                "board.marker_length=0.037"]
+
+
+def test_charuco_print_is_opencvs_generate_image(tmp_path: Path) -> None:
+    board = Board(board_type="charuco", cols=5, rows=4, legacy_pattern=True)
+    dpi = 160 / 80 * 25.4        # 160 px per 80 mm square: whole pixels per module
+    out = tmp_path / "charuco.png"
+    layout = write_printable(board, out, dpi=dpi)
+    page = cv2.imread(str(out), cv2.IMREAD_GRAYSCALE)
+    x0, y0 = np.round(board_to_png_px(layout, np.array([[0.0, 0.0]]), dpi)[0] + 0.5).astype(int)
+    crop = page[y0:y0 + 4 * 160, x0:x0 + 5 * 160]
+    ref = board.to_cv_board().generateImage((5 * 160, 4 * 160), marginSize=0)
+    assert np.mean((crop > 127) != (ref > 127)) < 1e-3
+
+
+def test_chessboard_print_has_its_squares_where_the_board_says(tmp_path: Path) -> None:
+    board = Board(board_type="chessboard", cols=8, rows=6, square_length=0.03)
+    dpi = 254.0
+    out = tmp_path / "chess.png"
+    layout = write_printable(board, out, dpi=dpi)
+    page = cv2.imread(str(out), cv2.IMREAD_GRAYSCALE)
+    found, corners = cv2.findChessboardCorners(page, (8, 6))
+    assert found
+    corners = cv2.cornerSubPix(page, corners, (5, 5), (-1, -1),
+                               (cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_COUNT, 30, 0.01))
+    want = board_to_png_px(layout, board.object_points(), dpi)
+    d = np.linalg.norm(corners.reshape(-1, 1, 2) - want[None], axis=2).min(axis=1)
+    assert d.max() < 0.3
+
+
+@pytest.mark.parametrize(("kind", "args"), [("chessboard", CHESS_ARGS),
+                                            ("charuco", CHARUCO_ARGS)])
+def test_synth_detect_json_points_match_truth(tmp_path: Path, kind: str,
+                                              args: list[str]) -> None:
+    data = tmp_path / "data"
+    assert main(["synth", *args, "--camera", "webcam", "--frames", "2", "--out", str(data),
+                 "--partial-fraction", "0"]) == 0
+    truth = load_truth(data / "truth.json")
+    assert truth.board.board_type == kind
+    out = tmp_path / "det.json"
+    pngs = sorted(str(p) for p in data.glob("*.png"))
+    assert main(["detect", *pngs, *args, "--json", str(out), "--quiet"]) == 0
+    images = json.loads(out.read_text())["images"]
+    for record, frame in zip(images, truth.frames, strict=True):
+        pts = {p["id"]: p["xy"] for p in record["points"]}
+        assert len(pts) >= 0.9 * frame.points_inside.sum()
+        true = dict(zip(frame.point_ids.tolist(), frame.points_px.tolist(), strict=True))
+        err = [np.hypot(*(np.array(xy) - true[i])) for i, xy in pts.items()]
+        assert max(err) < 0.15
+        assert (len(record["markers"]) > 0) == (kind == "charuco")
+
+
+def test_camera_calibration_size_and_square_calibrate_a_chessboard(tmp_path: Path) -> None:
+    board = Board(board_type="chessboard", cols=9, rows=6, square_length=0.04)
+    cam = Camera.preset("webcam")
+    truth = load_truth(write_dataset(board, cam, tmp_path / "data", frames=8, seed=3,
+                                     partial_fraction=0.0))
+    out = tmp_path / "cam.yaml"
+    pngs = sorted(str(p) for p in (tmp_path / "data").glob("*.png"))
+    code = main(["calibrate", *pngs, "--size", "9x6", "--square", "0.04", "--output", str(out),
+                 "--quiet"])
+    assert code == 0
+    K = np.array(yaml.safe_load(out.read_text())["camera_matrix"]["data"]).reshape(3, 3)
+    K_true = np.array(truth.camera.to_dict()["K"])
+    assert abs(K[0, 0] / K_true[0, 0] - 1) < 0.003
+    assert abs(K[0, 2] - K_true[0, 2]) < 1.0
+
+
+def test_size_contradicting_board_type_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
+    code = main(["calibrate", "x.png", "--size", "8x6", "--set", "board.type=charuco",
+                 "--output", "/tmp/never.yaml", "--quiet"])
+    assert code == 2
+    assert "contradicts" in capsys.readouterr().err
+    assert main(["calibrate", "x.png", "--size", "8by6", "--quiet"]) == 2
+    assert main(["calibrate", "x.png", "--square", "0.1", "--quiet"]) == 2
+
+
+@pytest.mark.parametrize("board", [
+    Board(board_type="chessboard", cols=9, rows=6, square_length=0.04),
+    Board(board_type="charuco", cols=7, rows=5, square_length=0.05, marker_length=0.037)],
+    ids=["chessboard", "charuco"])
+def test_live_collection_keeps_views_of_point_boards(tmp_path: Path, board: Board) -> None:
+    cam = Camera.preset("webcam")
+    truth_path = write_dataset(board, cam, tmp_path / "d", frames=4, seed=9,
+                               partial_fraction=0.0)
+    frames = [cv2.imread(str(tmp_path / "d" / f.file), cv2.IMREAD_GRAYSCALE)
+              for f in load_truth(truth_path).frames if f.file]
+    collector = ViewCollector(board, CoverageConfig(min_views=2))
+    live = LiveDetection(board, Detector(board).detect, collector)
+    try:
+        for image in frames:
+            live.offer(image)
+            deadline = time.monotonic() + 20
+            while live.counts().measured == 0 and time.monotonic() < deadline:
+                time.sleep(0.02)
+            time.sleep(0.25)   # the newest frame is re-measured at most every refresh_s
+    finally:
+        live.stop(5.0)
+    views = collector.views
+    assert len(views) >= 2
+    assert all(len(v.point_ids) >= 8 for v in views)
