@@ -60,7 +60,13 @@ from artcal_ros.core.detect.image import to_gray, to_gray8
 from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool, known_lens
 from artcal_ros.core.detect.patterns import inner_border_cells, outer_neighbours
 from artcal_ros.core.detect.sampling import border_is_dark
-from artcal_ros.core.detect.tone import ToneCurve, ToneEstimate, TonePool, probe_costs
+from artcal_ros.core.detect.tone import (
+    CANDIDATES,
+    ToneCurve,
+    ToneEstimate,
+    TonePool,
+    probe_costs,
+)
 from artcal_ros.core.detect.verify import code_errors, neighbour_support, sides_are_edges
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import DetectionError
@@ -156,9 +162,8 @@ class _ToneProbe:
         fit, self.last = self.last, None
         pick = np.linspace(0, len(fit.sides) - 1, min(len(fit.sides), _PROBE_SIDES))
         sides = fit.sides[pick.astype(int)]
-        fit_values, values = fit.subset(sides)
-        costs = probe_costs(fit_values, values, sides, len(fit.coef), self.curve, fit.coef,
-                            fit.blur)
+        fit_values, values = fit.subset(sides, copies=len(CANDIDATES))
+        costs = probe_costs(fit_values, values, sides, self.curve, fit.coef, fit.blur)
         self.pool.add(costs, len(values), len(sides))
 
 

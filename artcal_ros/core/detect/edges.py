@@ -355,6 +355,7 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
 
 # the step model's per-sample inputs (the others are per side)
 _PER_SAMPLE = ("s", "side", "basis", "far", "module_px", "outer", "quiet_px")
+_PER_SIDE = ("fit_order", "normal")
 
 
 @dataclass(frozen=True)
@@ -374,11 +375,15 @@ class ProbeFit:
     coef: np.ndarray
     blur: np.ndarray
 
-    def subset(self, sides: np.ndarray) -> tuple[Callable[..., None], np.ndarray]:
-        """``fit_values(values, **kw)`` on only the samples of ``sides``, and those values.
+    def subset(self, sides: np.ndarray, copies: int = 1
+               ) -> tuple[Callable[..., None], np.ndarray]:
+        """``fit_values(values, **kw)`` on ``copies`` copies of only ``sides``' samples,
+        and those samples' values (one copy).
 
-        The re-fits then touch none of the frame's other samples (the fit converts its
-        inputs on every call).
+        The copies are one fit problem of ``copies * F`` sides (copy c's side f is
+        side ``c F + f``; ``values``, ``coef0``, ``blur0`` and ``cost_out`` come in that
+        order), so a probe of several curves is one call of the compiled fit, and the
+        re-fits touch none of the frame's other samples.
         """
         # the samples are ordered by side: each side's are one run
         side = np.asarray(self.common["side"])
@@ -387,8 +392,21 @@ class ProbeFit:
         hi = np.searchsorted(side, sides, side="right")
         keep = np.concatenate([np.arange(a, b) for a, b in zip(lo, hi, strict=True)]
                               + [np.zeros(0, np.intp)])
-        sub = {k: (v[keep] if k in _PER_SAMPLE and v is not None else v)
-               for k, v in self.common.items()}
+        f = len(sides)
+        local = np.repeat(np.arange(f), hi - lo)   # the kept samples' side, renumbered
+        sub: dict[str, Any] = {}
+        for k, v in self.common.items():
+            if k == "side":
+                sub[k] = np.concatenate([local + c * f for c in range(copies)])
+            elif k in _PER_SAMPLE and v is not None:
+                part = np.asarray(v)[keep]
+                sub[k] = np.concatenate([part] * copies)
+            elif k in _PER_SIDE:
+                sub[k] = np.concatenate([np.asarray(v)[sides]] * copies)
+            elif k == "n_sides":
+                sub[k] = copies * f
+            else:
+                sub[k] = v
 
         def fit_values(values: np.ndarray, **kw: Any) -> None:
             fit_step_model(values, iterations=_PROBE_STEPS, **sub, **kw)

@@ -225,26 +225,23 @@ class TonePool:
 
 
 def probe_costs(fit_values: Callable[..., None], values: np.ndarray, sides: np.ndarray,
-                n_sides: int, current: ToneCurve, coef: np.ndarray, blur: np.ndarray
-                ) -> np.ndarray:
+                current: ToneCurve, coef: np.ndarray, blur: np.ndarray) -> np.ndarray:
     """(C,) step-model costs of every candidate curve on the ``sides`` given.
 
     Args:
-        fit_values: ``fit_values(values, coef0=, blur0=, sides=, cost_out=)`` re-fits
-            the sides to other sample values (the step model's fit with everything
-            else bound, on the samples of ``sides``).
-        values: (N,) those samples' linear values, read through ``current``.
-        sides: (F,) int, the sides to probe.
-        n_sides: S, all sides of the fit.
+        fit_values: ``fit_values(values, coef0=, blur0=, cost_out=)`` re-fits C copies
+            of the sides, copy c to ``values`` read through candidate c (the step
+XX
+            ``copies=C``; C F sides, copy-major).
+        values: (N,) the probed sides' samples' linear values, read through ``current``.
+        sides: (F,) int, the sides probed (indices into ``coef`` and ``blur``).
         current: the curve ``values`` were read through.
         coef, blur: (S, 3), (S,) the fit at ``current``, the start of every re-fit.
     """
     encoded = current.to_encoded(values)
-    out = np.zeros(len(CANDIDATES))
-    cost = np.zeros(n_sides)
-    for c, curve in enumerate(CANDIDATES):
-        cost[:] = 0.0
-        fit_values(curve.to_linear(encoded), coef0=coef, blur0=blur, sides=sides,
-                   cost_out=cost)
-        out[c] = float(cost[sides].sum())
-    return out
+    n_cand, f = len(CANDIDATES), len(sides)
+    stacked = np.concatenate([curve.to_linear(encoded) for curve in CANDIDATES])
+    cost = np.zeros(n_cand * f)
+    fit_values(stacked, coef0=np.tile(coef[sides], (n_cand, 1)),
+               blur0=np.tile(blur[sides], n_cand), cost_out=cost)
+    return cost.reshape(n_cand, f).sum(axis=1)
