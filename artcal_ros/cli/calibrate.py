@@ -5,6 +5,7 @@
     artcal calibrate IMAGE... --params P [--set KEY=VALUE]... --output camera.yaml [--report DIR]
     artcal calibrate --bag BAG [--topic T] --params P --output camera.yaml [--report DIR]
     artcal calibrate IMAGE... --size 8x6 --square 0.108 --output camera.yaml   # a chessboard
+    artcal calibrate IMAGE... --target april_6x6.yaml --output camera.yaml    # Kalibr's target
 
 The solve options are the parameters file's (``camera_model``, ``points``, ``max_views``,
 ``calibrate.*``), as for the calibrator node; the detection, solve, write and summary are
@@ -29,7 +30,7 @@ from typing import Any
 
 import numpy as np
 
-from artcal_ros.cli.common import add_params_arguments, chessboard_overrides, params_from_args
+from artcal_ros.cli.common import add_params_arguments, board_overrides, params_from_args
 from artcal_ros.cli.progress import Progress
 from artcal_ros.cli.skipped import SkippedFrames, read_image_file
 from artcal_ros.core.board import Board
@@ -72,6 +73,9 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--square", type=float, default=None, metavar="METRES",
                         help="with --size: the chessboard's square side in metres, as "
                              "camera_calibration's --square 0.108 (board.square_length)")
+    parser.add_argument("--target", metavar="target.yaml", default=None,
+                        help="a Kalibr target YAML (target_type aprilgrid or checkerboard), "
+                             "translated into the board.* parameters (docs/conventions.md)")
     parser.add_argument("--k3", action="store_true",
                         help="deprecated: the same as --set calibrate.k_coefficients=3 "
                              "(plumb_bob: also estimate k3, for strong wide-angle distortion)")
@@ -203,8 +207,7 @@ def _k3_alias(args: argparse.Namespace, params: dict[str, Any]) -> dict[str, Any
 
 def run(args: argparse.Namespace) -> int:
     """Run the verb; see the module docstring for the exit status."""
-    params = _k3_alias(args, params_from_args(args, chessboard_overrides(args.size,
-                                                                         args.square)))
+    params = _k3_alias(args, params_from_args(args, board_overrides(args)))
     board = Board.from_params(params)
     if bool(args.images) == bool(args.bag):
         raise ParameterError("give either image files or --bag BAG (not both, not neither)")

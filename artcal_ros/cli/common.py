@@ -6,6 +6,7 @@ import argparse
 from typing import Any
 
 from artcal_ros.core.errors import ParameterError
+from artcal_ros.core.kalibr_target import target_params
 from artcal_ros.core.params import ParamValue, load_params, parse_override
 
 
@@ -59,3 +60,14 @@ def chessboard_overrides(size: str | None, square: float | None) -> dict[str, An
                                  "for other boards use --set board.square_length=...")
         out["board.square_length"] = float(square)
     return out
+
+
+def board_overrides(args: argparse.Namespace) -> dict[str, Any]:
+    """The board a verb's own options give: ``--size``/``--square`` (camera_calibration's
+    chessboard) or ``--target`` (a Kalibr target YAML), not both."""
+    target = getattr(args, "target", None)
+    if target is not None and (args.size is not None or args.square is not None):
+        raise ParameterError("--target and --size/--square each give the board; give one")
+    if target is not None:
+        return target_params(target)
+    return chessboard_overrides(args.size, args.square)

@@ -28,7 +28,7 @@ from artcal_ros.cli.progress import Progress
 from artcal_ros.cli.skipped import SkippedFrames, read_image_file
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector, DetectorConfig
-from artcal_ros.core.detections import Detections
+from artcal_ros.core.detections import Detections, tag_corner_points
 from artcal_ros.core.errors import ImageFormatError, ParameterError
 
 
@@ -111,9 +111,10 @@ def run(args: argparse.Namespace) -> int:
             skipped.add(e)
             continue
         dets = detector.detect(image, source=path)
-        records.append(dets.to_json(file=path, with_points=board.has_points))
+        listed = tag_corner_points(dets, board) if board.board_type == "aprilgrid" else dets
+        records.append(listed.to_json(file=path, with_points=board.has_points))
         total += len(dets)
-        points += len(dets.point_ids)
+        points += len(listed.point_ids)
         if overlay_dir is not None:
             name = overlay_dir / (Path(path).stem + ".png")
             if not cv2.imwrite(str(name), draw_detections(image, dets)):
@@ -127,7 +128,7 @@ def run(args: argparse.Namespace) -> int:
     except OSError as e:
         raise ParameterError(f"--json {args.json}: cannot write it: {e.strerror or e}") from None
     found = f"{total} markers"
-    if board.has_points:
+    if board.has_points or board.board_type == "aprilgrid":
         found = f"{points} points" + (f" and {total} markers" if board.n_markers else "")
     line = f"wrote {args.json}: {found} in {len(records)} image(s)"
     print(line + (f"; {skipped.summary()}" if skipped.count else ""))

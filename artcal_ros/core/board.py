@@ -13,6 +13,8 @@
 - ``charuco`` is OpenCV's ``CharucoBoard``: ``cols`` x ``rows`` squares (squaresX,
   squaresY), a marker in every white square, point ids OpenCV's charuco corner ids, the
   origin at the squares' top-left outer corner, ``legacy_pattern`` as ``setLegacyPattern``.
+- ``aprilgrid`` is Kalibr's AprilGrid (:mod:`artcal_ros.core.boards.aprilgrid`) in the
+  marker grid's frame: Kalibr's tag ids (tag 0 bottom-left) and point ids (the tag corners).
 
 A marker is ``bits + 2`` modules wide (a one-module border around the code).
 With polarity ``black`` a marker is a black border on white paper; ``white``
@@ -32,7 +34,9 @@ import cv2
 import numpy as np
 
 from artcal_ros.core.boards import BUILT_TYPES, PLANNED_TYPES, POINT_TYPES
+from artcal_ros.core.boards import aprilgrid as kalibr
 from artcal_ros.core.boards.chess import ChessLayout
+from artcal_ros.core.boards.text import cv_board, describe
 from artcal_ros.core.errors import BoardError
 
 POLARITIES = ("black", "white", "mixed", "any")
@@ -83,7 +87,7 @@ class Board:
         complaint = board_type_complaint(self.board_type)
         if complaint:
             raise BoardError(f"parameter 'board.type': {complaint}")
-        least = 1 if self.board_type == "marker_grid" else 2
+        least = 1 if self.board_type in ("marker_grid", "aprilgrid") else 2
         if self.cols < least:
             raise BoardError(f"parameter 'board.cols': {self.cols} must be >= {least}")
         if self.rows < least:
@@ -101,7 +105,10 @@ class Board:
         if not self.marker_length > 0:
             raise BoardError(f"parameter 'board.marker_length': {self.marker_length} "
                              "must be > 0 (metres)")
-        dictionary = dictionary_by_name(self.dictionary_name)
+        if self.board_type == "aprilgrid":
+            dictionary = self._aprilgrid_dictionary()
+        else:
+            dictionary = dictionary_by_name(self.dictionary_name)
         object.__setattr__(self, "_dictionary", dictionary)
         size = int(dictionary.bytesList.shape[0])
         last = self.first_id + self.n_markers - 1
@@ -125,6 +132,14 @@ class Board:
                 f"for the quiet zone around each marker; use at least {need:.4g} m "
                 f"({'two modules' if self.polarity == 'mixed' else 'one module'} of "
                 f"{self.module_length:.4g} m)")
+
+    def _aprilgrid_dictionary(self) -> cv2.aruco.Dictionary:
+        complaint = kalibr.aprilgrid_complaint(self.dictionary_name, self.polarity,
+                                               self.first_id)
+        if complaint:
+            raise BoardError(complaint)
+        object.__setattr__(self, "dictionary_name", "tag36h11")
+        return kalibr.aprilgrid_dictionary(self.cols * self.rows)
 
     def _check_charuco(self) -> None:
         if not self.marker_length < self.square_length:
@@ -168,6 +183,9 @@ class Board:
             return "board.cols, board.rows, board.square_length"
         if self.board_type == "charuco":
             return "board.cols, board.rows, board.square_length, board.marker_length"
+        if self.board_type == "aprilgrid":
+            return ("board.cols, board.rows, board.marker_length (tagSize), "
+                    "board.marker_separation (tagSize x tagSpacing)")
         return "board.cols, board.rows, board.marker_length, board.marker_separation"
 
     # --- layout -------------------------------------------------------------------
@@ -197,6 +215,8 @@ class Board:
     @cached_property
     def point_ids(self) -> np.ndarray:
         """(M,) int64: every point id (inner corners; empty for a marker grid)."""
+        if self.board_type == "aprilgrid":
+            return np.arange(4 * self.n_markers, dtype=np.int64)
         return np.arange(0 if self.chess is None else self.chess.n_corners, dtype=np.int64)
 
     def _check_point_ids(self, ids: np.ndarray) -> np.ndarray:
@@ -210,13 +230,26 @@ class Board:
     def object_points(self, point_ids: np.ndarray | None = None) -> np.ndarray:
         """(M, 3) float64, metres: the board-frame position of each point id."""
         ids = self.point_ids if point_ids is None else self._check_point_ids(point_ids)
+        if self.board_type == "aprilgrid":
+            return kalibr.kalibr_points(ids, self.cols, self.rows, self.marker_length,
+                                        self.marker_separation)
         if self.chess is None:
             return np.zeros((0, 3))
         return self.chess.corner_points(ids)
 
+    def marker_point_ids(self, marker_ids: np.ndarray) -> np.ndarray:
+        """(N, 4) int64: the point id of each marker's corners TL, TR, BR, BL (aprilgrid:
+        Kalibr's point ids); BoardError on other boards."""
+        if self.board_type != "aprilgrid":
+            raise BoardError(f"a {self.board_type} has no point ids on its markers")
+        self._cells(marker_ids)
+        return kalibr.kalibr_corner_ids(marker_ids, self.cols)
+
     def point_cells(self, point_ids: np.ndarray) -> np.ndarray:
         """(M, 2) int64 (row, col) of each point in the board's grid of points."""
         ids = self._check_point_ids(point_ids)
+        if self.board_type == "aprilgrid":
+            return kalibr.point_cells(ids, self.cols, self.rows)
         if self.chess is None:
             return np.zeros((0, 2), np.int64)
         return self.chess.corner_cells(ids)
@@ -262,6 +295,9 @@ class Board:
             return self.chess.extent_m
         w = self.cols * self.pitch - self.marker_separation
         h = self.rows * self.pitch - self.marker_separation
+        if self.board_type == "aprilgrid":  # the corner squares around the outside
+            s = self.marker_separation
+            return -s, -s, w + s, h + s
         return 0.0, 0.0, w, h
 
     @property
@@ -299,6 +335,8 @@ class Board:
         if self.chess is not None:
             return self.chess.white_squares if self.n_markers else np.zeros((0, 2), np.int64)
         k = np.arange(self.n_markers)
+        if self.board_type == "aprilgrid":
+            return kalibr.tag_cells(k, self.cols, self.rows)
         return np.stack([k // self.cols, k % self.cols], axis=1)
 
     def cell_of(self, marker_id: int) -> tuple[int, int]:
@@ -408,7 +446,9 @@ class Board:
             row = np.clip(np.floor((y + half) / self.pitch).astype(np.int64), 0, self.rows - 1)
             u = x - col * self.pitch
             v = y - row * self.pitch
-            k = row * self.cols + col
+            # Kalibr numbers an aprilgrid's tag rows from the bottom
+            tag_row = (self.rows - 1 - row) if self.board_type == "aprilgrid" else row
+            k = tag_row * self.cols + col
             inverted = np.array([self.is_inverted(int(i)) for i in self.ids], dtype=bool)
             out = ~inverted[k]  # tile background: white around a black marker
         inside = ((k >= 0) & (u >= 0) & (u < self.marker_length) & (v >= 0)
@@ -417,6 +457,9 @@ class Board:
         mc = np.clip((u[inside] / self.module_length).astype(np.int64), 0, n - 1)
         mr = np.clip((v[inside] / self.module_length).astype(np.int64), 0, n - 1)
         out[inside] = self._marker_modules[k[inside], mr, mc]
+        if self.board_type == "aprilgrid":
+            out &= ~kalibr.in_corner_square(x, y, self.cols, self.rows, self.marker_length,
+                                            self.marker_separation)
         return out
 
     def print_lines(self) -> tuple[np.ndarray, np.ndarray]:
@@ -434,41 +477,18 @@ class Board:
             else:
                 starts = np.arange(count) * self.pitch
                 parts.append(starts[1:] - 0.5 * self.marker_separation)
+                if self.board_type == "aprilgrid":  # the outer corner squares' edges
+                    s = self.marker_separation
+                    parts.append(np.array([-s, count * self.pitch]))
             if self.n_markers:
                 parts.append((starts[:, None] + np.arange(n + 1) * self.module_length).ravel())
             lines.append(np.unique(np.round(np.concatenate(parts), 12)))
         return lines[0], lines[1]
 
     def to_cv_board(self) -> cv2.aruco.Board:
-        """The equivalent OpenCV board: ``GridBoard`` or ``CharucoBoard`` (same ids and
-        object points); BoardError for a chessboard, which OpenCV has no class for."""
-        if self.board_type == "charuco":
-            b = cv2.aruco.CharucoBoard((self.cols, self.rows), self.square_length,
-                                       self.marker_length, self._dictionary,
-                                       self.ids.astype(np.int32))
-            b.setLegacyPattern(self.legacy_pattern)
-            return b
-        if self.board_type == "chessboard":
-            raise BoardError("a chessboard has no OpenCV board object; use object_points()")
-        return cv2.aruco.GridBoard((self.cols, self.rows), self.marker_length,
-                                   self.marker_separation, self._dictionary,
-                                   self.ids.astype(np.int32))
+        """The equivalent OpenCV board (:func:`artcal_ros.core.boards.text.cv_board`)."""
+        return cv_board(self)
 
     def describe(self) -> str:
         """One line stating the board's parameters (printed on the board's margin)."""
-        w, h = self.size_m
-        size = f"({w * 1000:g} x {h * 1000:g} mm)"
-        if self.board_type == "chessboard":
-            return (f"artcal chessboard {self.cols}x{self.rows} inner corners "
-                    f"square {self.square_length * 1000:g} mm {size}")
-        if self.board_type == "charuco":
-            legacy = " legacy pattern" if self.legacy_pattern else ""
-            return (f"artcal charuco {self.cols}x{self.rows} squares {self.dictionary_name} "
-                    f"ids {self.first_id}..{int(self.ids[-1])} "
-                    f"square {self.square_length * 1000:g} mm "
-                    f"marker {self.marker_length * 1000:g} mm{legacy} {size}")
-        return (f"artcal marker_grid {self.cols}x{self.rows} {self.dictionary_name} "
-                f"ids {self.first_id}..{int(self.ids[-1])} "
-                f"marker {self.marker_length * 1000:g} mm "
-                f"gap {self.marker_separation * 1000:g} mm polarity {self.polarity} "
-                f"{size}")
+        return describe(self)

@@ -3,9 +3,12 @@
 from __future__ import annotations
 
 from dataclasses import dataclass, field, replace
-from typing import Any
+from typing import TYPE_CHECKING, Any
 
 import numpy as np
+
+if TYPE_CHECKING:
+    from artcal_ros.core.board import Board
 
 
 @dataclass(frozen=True)
@@ -124,3 +127,12 @@ class Detections:
             point_ids=np.array([p["id"] for p in points], dtype=np.int64),
             points_px=np.array([p["xy"] for p in points], dtype=np.float64).reshape(-1, 2),
         )
+
+
+def tag_corner_points(dets: Detections, board: Board) -> Detections:
+    """``dets`` with its markers' corners also listed as the board's points: an aprilgrid's
+    tag corners under Kalibr's point ids (ascending), for ``artcal detect --json``."""
+    pids = board.marker_point_ids(dets.ids).reshape(-1)
+    order = np.argsort(pids, kind="stable")
+    return dets.with_points(pids[order], dets.corners_px.reshape(-1, 2)[order],
+                            dets.corner_sigma_px.reshape(-1)[order])

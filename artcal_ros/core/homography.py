@@ -32,8 +32,9 @@ def homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 
 def apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Apply (M, 3, 3) homographies to points (M, P, 2) -> (M, P, 2)."""
-    H = np.asarray(H, dtype=np.float64)
-    # one compiled signature: broadcast views are copied to plain arrays
+    # One compiled signature: views (broadcast, sliced, transposed) are copied to plain
+    # arrays. A second layout would be compiled on first use, inside a running node.
+    H = np.ascontiguousarray(H, dtype=np.float64)
     pts = np.ascontiguousarray(pts, dtype=np.float64)
     return _apply_kernel(H, pts)
 

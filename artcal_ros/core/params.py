@@ -18,6 +18,7 @@ from typing import Any
 import yaml
 
 from artcal_ros.core.boards import BUILT_TYPES, PLANNED_TYPES
+from artcal_ros.core.boards.aprilgrid import aprilgrid_complaint
 from artcal_ros.core.camera import MODELS
 from artcal_ros.core.errors import ParameterError
 
@@ -59,6 +60,8 @@ def _board_type(value: Any) -> str | None:
 def _dictionary(value: Any) -> str | None:
     import cv2
 
+    if str(value) == "tag36h11":  # an aprilgrid's (Kalibr's name)
+        return None
     if str(value).startswith("DICT_") and isinstance(getattr(cv2.aruco, str(value), None), int):
         return None
     names = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
@@ -72,18 +75,24 @@ _RANGE_WORDS: dict[Any, str] = {_positive: " > 0", _non_negative: " >= 0"}
 PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("board.type", "marker_grid",
               "Board layout: marker_grid (self-identifying markers), chessboard "
-              "(camera_calibration's), charuco (OpenCV's CharucoBoard).",
+              "(camera_calibration's), charuco (OpenCV's CharucoBoard), aprilgrid (Kalibr's "
+              "AprilGrid).",
               check=_board_type, allowed=", ".join(BUILT_TYPES)),
     ParamSpec("board.dictionary", "DICT_6X6_1000",
-              "OpenCV predefined ArUco dictionary name of the markers.", check=_dictionary),
-    ParamSpec("board.cols", 19, "Per row: markers (marker_grid), inner corners (chessboard, "
+              "OpenCV predefined ArUco dictionary name of the markers (aprilgrid: tag36h11, "
+              "the only one it prints).", check=_dictionary),
+    ParamSpec("board.cols", 19, "Per row: markers (marker_grid), tags (aprilgrid: Kalibr's "
+              "tagCols), inner corners (chessboard, "
               "camera_calibration's --size COLSxROWS), squares (charuco, OpenCV's squaresX).",
               check=_positive),
-    ParamSpec("board.rows", 9, "Per column: markers (marker_grid), inner corners "
+    ParamSpec("board.rows", 9, "Per column: markers (marker_grid), tags (aprilgrid: "
+              "tagRows), inner corners "
               "(chessboard), squares (charuco, OpenCV's squaresY).", check=_positive),
-    ParamSpec("board.marker_length", 0.06, "Side of a marker's outer black square, metres.",
+    ParamSpec("board.marker_length", 0.06,
+              "Side of a marker's outer black square, metres (aprilgrid: Kalibr's tagSize).",
               check=_positive),
-    ParamSpec("board.marker_separation", 0.02, "Gap between neighbouring markers, metres.",
+    ParamSpec("board.marker_separation", 0.02,
+              "Gap between neighbouring markers, metres (aprilgrid: tagSize x tagSpacing).",
               check=_positive),
     ParamSpec("board.square_length", 0.08,
               "Side of a chessboard or charuco square, metres.", check=_positive),
@@ -156,6 +165,9 @@ def _board_fits(values: Mapping[str, ParamValue]) -> str | None:
     kind = values["board.type"]
     if kind == "marker_grid":
         return None
+    if kind == "aprilgrid":
+        return aprilgrid_complaint(str(values["board.dictionary"]), str(values["board.polarity"]),
+                                   int(values["board.first_id"]))
     for name in ("board.cols", "board.rows"):
         if int(values[name]) < 2:
             what = "inner corners" if kind == "chessboard" else "squares"

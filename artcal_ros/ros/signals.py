@@ -38,6 +38,7 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 # stop add up to a few seconds; a supervisor (ros2 launch, a test) escalates to SIGKILL
 # after ~10 s, and a node killed that way loses its last session save and log lines.
 STOP_GRACE_S = 6.0
+HARD_LIMIT_EXTRA_S = 2.5  # after the grace time: the GIL-free limit (see StopSignals)
 
 
 class StopSignals:
@@ -61,7 +62,9 @@ class StopSignals:
 
         ``grace_s``: once a stop signal came, the process ends at the latest this many
         seconds later (exit status 0, after a warning naming the threads still busy and
-        their stacks on stderr), whatever thread is still stuck; None: no limit.
+        their stacks on stderr), whatever thread is still stuck; if even that cannot run
+        (the GIL held by a blocked call), :data:`HARD_LIMIT_EXTRA_S` later with status 1
+        and the stacks. None: no limit.
         """
         stop = cls(grace_s)
         for sig in STOP_SIGNALS:
@@ -79,6 +82,10 @@ class StopSignals:
         if self.grace_s is not None:
             threading.Thread(target=_leave_after, args=(self.grace_s,), name="stop-watchdog",
                              daemon=True).start()
+            # The last resort, on a C thread of the interpreter that needs no GIL: a call
+            # into a library that blocks with the GIL held (a DDS participant that does not
+            # come down) stops the Python watchdog too. Stacks on stderr, exit status 1.
+            faulthandler.dump_traceback_later(self.grace_s + HARD_LIMIT_EXTRA_S, exit=True)
 
     def is_set(self) -> bool:
         """True once a stop signal came."""

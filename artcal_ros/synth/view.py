@@ -150,10 +150,12 @@ def render_view(board: Board, cam: Camera, rvec: np.ndarray, tvec: np.ndarray, *
                         backdrop=backdrop)
     image = sense_and_encode(lin, phot, rng, encoding)
     corners, centers, inside, side = marker_truth(board, cam, rvec, tvec)
-    points, points_inside = np.zeros((0, 2)), np.zeros(0, bool)
+    # an aprilgrid's points are its tag corners: their truth is the markers'
+    point_ids, points, points_inside = np.zeros(0, np.int64), np.zeros((0, 2)), np.zeros(0, bool)
     if board.has_points:
+        point_ids = board.point_ids.copy()
         points, points_inside, _ = point_truth(board, cam, rvec, tvec)
     return RenderedView(image=image, encoding=encoding, rvec=rvec, tvec=tvec,
                         ids=board.ids.copy(), corners_px=corners, centers_px=centers,
-                        inside=inside, side_px=side, point_ids=board.point_ids.copy(),
+                        inside=inside, side_px=side, point_ids=point_ids,
                         points_px=points, points_inside=points_inside)

@@ -5,7 +5,7 @@ sources. The first detection on a new install would otherwise pay the compilatio
 seconds on a small machine); ``make`` runs this once when it sets up ``.venv``, so the node,
 the CLI and the tests start from a warm cache. It renders a few frames of the default board
 and detects them the ways the package does (cold, streamed, with a known camera, grey 8 and
-16 bit, BGR, every polarity).
+16 bit, BGR, every polarity, and the node's marker tracker between them).
 """
 
 from __future__ import annotations
@@ -17,6 +17,7 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector, detect
+from artcal_ros.core.detect.tracking import MarkerTracker
 from artcal_ros.synth.camera import Camera
 from artcal_ros.synth.photometry import Photometry
 from artcal_ros.synth.poses import random_poses
@@ -33,12 +34,17 @@ def warm() -> int:
         board = Board(polarity=polarity)
         cam = Camera.preset(preset)
         stream = Detector(board)
+        tracker = MarkerTracker(board)
         for rvec, tvec in random_poses(board, cam, 2, rng):
             view = render_view(board, cam, rvec, tvec, rng=rng, photometry=Photometry.clean(),
                                encoding=encoding)
             found += len(detect(view.image, board))
-            found += len(stream.detect(view.image))
+            dets = stream.detect(view.image)
+            found += len(dets)
             found += len(detect(view.image, board, camera=cam))
+            for _ in range(2):  # seeded, then followed into the same frame
+                index, _markers = tracker.track(view.image)
+                tracker.seed(index, dets)
     return found
 
 

@@ -106,8 +106,10 @@ def test_size_contradicting_board_type_is_refused(capsys: pytest.CaptureFixture[
 
 @pytest.mark.parametrize("board", [
     Board(board_type="chessboard", cols=9, rows=6, square_length=0.04),
-    Board(board_type="charuco", cols=7, rows=5, square_length=0.05, marker_length=0.037)],
-    ids=["chessboard", "charuco"])
+    Board(board_type="charuco", cols=7, rows=5, square_length=0.05, marker_length=0.037),
+    Board(board_type="aprilgrid", cols=6, rows=6, marker_length=0.088,
+          marker_separation=0.0264)],
+    ids=["chessboard", "charuco", "aprilgrid"])
 def test_live_collection_keeps_views_of_point_boards(tmp_path: Path, board: Board) -> None:
     cam = Camera.preset("webcam")
     truth_path = write_dataset(board, cam, tmp_path / "d", frames=4, seed=9,
@@ -127,4 +129,6 @@ def test_live_collection_keeps_views_of_point_boards(tmp_path: Path, board: Boar
         live.stop(5.0)
     views = collector.views
     assert len(views) >= 2
-    assert all(len(v.point_ids) >= 8 for v in views)
+    # points on chessboard and ChArUco, markers (tags) on an aprilgrid
+    assert all(v.n_features >= 8 for v in views)
+    assert all(len(v.point_ids) >= 8 for v in views) == board.has_points

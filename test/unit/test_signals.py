@@ -56,3 +56,29 @@ def test_a_clean_stop_leaves_without_the_watchdog() -> None:
     assert "main done" in done.stdout
     assert "stopping took longer" not in done.stderr
     assert "Traceback" not in done.stderr, done.stderr
+
+
+HOLDS_THE_GIL = textwrap.dedent("""
+    import ctypes, os, signal, sys
+    from artcal_ros.ros.signals import StopSignals
+
+    stop = StopSignals.install(grace_s=0.5)
+    os.kill(os.getpid(), signal.SIGINT)
+    assert stop.event.wait(5.0)
+    print("blocking with the GIL held", flush=True)
+    # A C call that never returns and keeps the GIL (ctypes.PyDLL does not release it),
+    # like a library teardown that hangs: the Python watchdog cannot run.
+    ctypes.PyDLL(None).pause()
+""")
+
+
+def test_a_call_that_blocks_holding_the_gil_still_ends_the_process() -> None:
+    t0 = time.monotonic()
+    done = subprocess.run([sys.executable, "-c", HOLDS_THE_GIL], capture_output=True,
+                          text=True, timeout=60)
+    took = time.monotonic() - t0
+    assert "blocking with the GIL held" in done.stdout
+    assert done.returncode == 1, (done.returncode, done.stderr)
+    assert "Timeout" in done.stderr and "most recent call first" in done.stderr, done.stderr
+    assert "stopping took longer" not in done.stderr  # the Python watchdog could not run
+    assert took < 30, f"left after {took:.1f} s"

@@ -5,8 +5,11 @@
 
 - :mod:`.chess`: the squares of a chessboard and of a ChArUco board (OpenCV's
   ``CharucoBoard``, legacy pattern included), their inner corners and the ChArUco markers.
+- :mod:`.aprilgrid`: Kalibr's AprilGrid (tag36h11, 2-bit border, Kalibr's tag and point
+  numbering, the black squares where the gaps cross).
+- :mod:`.text`: every board type's printed one-line description and OpenCV board object.
 """
 
-BUILT_TYPES = ("marker_grid", "chessboard", "charuco")
-PLANNED_TYPES = ("aprilgrid", "circles", "acircles")
+BUILT_TYPES = ("marker_grid", "chessboard", "charuco", "aprilgrid")
+PLANNED_TYPES = ("circles", "acircles")
 POINT_TYPES = ("chessboard", "charuco")

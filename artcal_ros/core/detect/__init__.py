@@ -14,7 +14,9 @@ kernels (compiled on first use and cached on disk); ``linalg`` has their small
 solves, ``workers`` the threads the model fit runs on (``ARTCAL_THREADS``, default 2).
 A chessboard goes to ``chessboard``
 (OpenCV's grid finders, ids from the squares' colours); a ChArUco board runs the marker
-pipeline, then ``charuco`` places its corners from the markers. Both refine their corners
+pipeline, then ``charuco`` places its corners from the markers. An AprilGrid (Kalibr) runs the
+marker pipeline as it is: its board's dictionary sees each tag's 2-bit border as a 1-bit
+border around 8 x 8 code bits (:mod:`artcal_ros.core.boards.aprilgrid`). Both refine their corners
 with ``saddle``, a fit of the blurred X-corner model in linear light.
 
 Imports run one way, down these layers, never up or sideways (no cycles, also
