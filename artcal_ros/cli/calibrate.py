@@ -35,7 +35,9 @@ from artcal_ros.cli.progress import Progress
 from artcal_ros.cli.skipped import SkippedFrames, read_image_file
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate import CalibrationResult
+from artcal_ros.core.calibrate.board_check import check_board
 from artcal_ros.core.calibrate.session import detect_views, session_summary, solve_session
+from artcal_ros.core.detect import Detector, DetectorConfig
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError, BagError, ImageFormatError, ParameterError
 
@@ -230,8 +232,9 @@ def run(args: argparse.Namespace) -> int:
               if args.bag
               else _file_frames(list(args.images), args.quiet, skipped))
     start = time.monotonic()
+    detector = Detector(board, DetectorConfig.from_params(params))
     try:
-        dets, size = detect_views(_one_size(frames, skipped), board)
+        dets, size = detect_views(_one_size(frames, skipped), board, detector=detector)
     except ParameterError:
         if not skipped.count:
             raise
@@ -241,17 +244,26 @@ def run(args: argparse.Namespace) -> int:
 
     session = solve_session(dets, board, size, params, output=args.output,
                             max_views=args.max_views, progress=say)
+    tone = detector.tone
+    check = check_board([dets[i] for i in session.result.views_used], board,
+                        session.result.camera)
+    if check.warning:
+        warn(f"board check: {check.warning}")
     if args.report:
-        write_report(Path(args.report), session.result, dets)
+        write_report(Path(args.report), session.result, dets,
+                     {"tone_curve": tone.as_dict(), "board_check": check.as_dict()})
     # The session's time is the solve's; the user waited for the detection too.
     print(session_summary(replace(session, seconds=time.monotonic() - start), long=True))
+    print(f"tone curve: {tone.text()}")
+    print(f"board check: {check.text()}")
     if skipped.count:
         print(skipped.summary())
     return 0
 
 
-def write_report(directory: Path, result: CalibrationResult, dets: list[Detections]) -> None:
-    """summary.json and the PNG plots into ``directory``."""
+def write_report(directory: Path, result: CalibrationResult, dets: list[Detections],
+                 extra: dict[str, Any] | None = None) -> None:
+    """summary.json (with ``extra`` keys) and the PNG plots into ``directory``."""
     from artcal_ros.core.calibrate.report import write_plots
 
     try:
@@ -259,6 +271,7 @@ def write_report(directory: Path, result: CalibrationResult, dets: list[Detectio
         summary = result.to_summary_dict()
         summary["frames"] = len(dets)
         summary["sources_used"] = [dets[i].source for i in result.views_used]
+        summary.update(extra or {})
         (directory / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
     except OSError as e:
         raise ArtcalError(f"cannot write the report into {directory}: {e.strerror}") from None

@@ -27,7 +27,7 @@ from artcal_ros.cli.common import add_params_arguments, params_from_args
 from artcal_ros.cli.progress import Progress
 from artcal_ros.cli.skipped import SkippedFrames, read_image_file
 from artcal_ros.core.board import Board
-from artcal_ros.core.detect import Detector
+from artcal_ros.core.detect import Detector, DetectorConfig
 from artcal_ros.core.detections import Detections, tag_corner_points
 from artcal_ros.core.errors import ImageFormatError, ParameterError
 
@@ -86,8 +86,9 @@ def run(args: argparse.Namespace) -> int:
     Images that cannot be read are skipped, counted and named in the summary; only when
     none can be read is it an error (exit 2).
     """
-    board = Board.from_params(params_from_args(args))
-    detector = Detector(board)
+    params = params_from_args(args)
+    board = Board.from_params(params)
+    detector = Detector(board, DetectorConfig.from_params(params))
     out_json = Path(args.json)
     if out_json.parent and not out_json.parent.is_dir():
         raise ParameterError(f"--json {args.json}: directory {out_json.parent} does not exist")

@@ -32,6 +32,8 @@ class Detections:
         point_ids: (M,) int64 ids of the board's points found (``Board.object_points``).
         points_px: (M, 2) float64, pixels; the image of each point.
         point_sigma_px: (M,) float64, estimated 1-sigma error of each point, pixels.
+        edge_shift_px: the edge shift measured in this view and removed from the corners
+            (outward from the border positive; NaN when not measured), pixels.
     """
 
     ids: np.ndarray
@@ -45,6 +47,7 @@ class Detections:
     point_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
     points_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     point_sigma_px: np.ndarray = field(default_factory=lambda: np.zeros(0))
+    edge_shift_px: float = float("nan")
 
     def __post_init__(self) -> None:
         n = len(self.ids)
@@ -84,7 +87,8 @@ class Detections:
         return Detections(self.ids[mask], self.corners_px[mask], self.centers_px[mask],
                           self.image_size, self.corner_sigma_px[mask],
                           self.center_sigma_px[mask], self.sharpness, self.source,
-                          self.point_ids, self.points_px, self.point_sigma_px)
+                          self.point_ids, self.points_px, self.point_sigma_px,
+                          self.edge_shift_px)
 
     def with_points(self, point_ids: np.ndarray, points_px: np.ndarray,
                     point_sigma_px: np.ndarray | None = None) -> Detections:

@@ -123,6 +123,9 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("calibrate.zero_tangent_dist", False,
               "Hold the tangential distortion at zero, p1 = p2 = 0 (plumb_bob and "
               "rational_polynomial; equidistant has none)."),
+    ParamSpec("detector.gamma", 0.0,
+              "Tone curve of the images: 0 estimates it from the board's edges; > 0 fixes "
+              "linear = value ** gamma (2.2 sRGB-like, 1.0 linear).", check=_non_negative),
     ParamSpec("camera_name", "camera", "Name written into the calibration file.",
               check=_a_name, allowed="a non-empty name"),
     ParamSpec("output_file", "",

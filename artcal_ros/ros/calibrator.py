@@ -49,6 +49,7 @@ from std_srvs.srv import Trigger
 from artcal_ros.core.board import Board
 from artcal_ros.core.board_mismatch import BoardMismatch
 from artcal_ros.core.broken_frames import broken_cause
+from artcal_ros.core.calibrate.board_check import check_board
 from artcal_ros.core.calibrate.session import SolveOutcome, busy_threads, run_solve
 from artcal_ros.core.camera_info import as_camera_info
 from artcal_ros.core.coverage import CoverageConfig, ViewCollector
@@ -89,7 +90,7 @@ class CalibratorNode(Node):
         # is refused before that cost.
         from artcal_ros.core.detect import Detector, DetectorConfig
 
-        self.detector = Detector(self.board, DetectorConfig())
+        self.detector = Detector(self.board, DetectorConfig.from_params(self.params))
         self.board_mismatch = BoardMismatch(self.board)  # names a print that is not this board
         # Coverage is counted on the points the solve will use, as the solve counts it.
         self.collector = ViewCollector(
@@ -102,6 +103,7 @@ class CalibratorNode(Node):
         self.counters = Counters()
         self.frame_id = "camera"
         self.last_summary = ""
+        self.last_board_check = "not measured (no solve yet)"
         self._solving = threading.Lock()
         self._stopping = threading.Event()
         # Held to publish the heat map and the overlay: the latched heat map follows the
@@ -213,7 +215,9 @@ class CalibratorNode(Node):
             dropped, self.collector.readiness(), self.last_summary,
             self.get_clock().now().to_msg(), board_mismatch=self.board_mismatch.finding,
             extra={"frames measured": live.measured, "frames queued": live.queued,
-                   "views refused (queue full)": live.refused}))
+                   "views refused (queue full)": live.refused,
+                   "tone curve": self.detector.tone.text(),
+                   "board check": self.last_board_check}))
 
     # --- services -----------------------------------------------------------------
     def _on_calibrate(self, request: Trigger.Request, response: Trigger.Response
@@ -265,6 +269,11 @@ class CalibratorNode(Node):
                                 msgs.header(stamp, self.frame_id))
         self.info_pub.publish(info)
         self.last_summary = outcome.message
+        check = check_board([views[i] for i in outcome.result.views_used], self.board,
+                            outcome.result.camera)
+        self.last_board_check = check.text()
+        if check.warning:
+            self.get_logger().warning(f"board check: {check.warning}")
         if self.params["commit"]:
             committed = self._commit(info, outcome)
             return committed if outcome.success else replace(committed, success=False)

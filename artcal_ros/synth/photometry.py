@@ -52,6 +52,7 @@ class Photometry:
         full_well: electrons at full scale (shot noise: sqrt(electrons)).
         read_noise: read noise, electrons rms.
         gamma: encoding exponent, out = in ** (1 / gamma); 1.0 = linear output.
+        srgb: encode with the sRGB curve (IEC 61966-2-1) instead (``gamma`` unused).
         jpeg_quality: JPEG round trip at this quality (8-bit encodings only), None = off.
         tint: linear RGB gains of the light for colour encodings (mono uses their mean 1).
     """
@@ -71,6 +72,7 @@ class Photometry:
     full_well: float = 10000.0
     read_noise: float = 3.0
     gamma: float = 2.2
+    srgb: bool = False
     jpeg_quality: int | None = None
     tint: tuple[float, float, float] = (1.05, 1.0, 0.92)
 
@@ -241,7 +243,10 @@ def sense_and_encode(radiance: np.ndarray, phot: Photometry, rng: np.random.Gene
             electrons + phot.read_noise ** 2)
         signal = electrons / phot.full_well
     signal = np.minimum(np.maximum(signal, 0.0), 1.0)
-    if phot.gamma != 1.0:
+    if phot.srgb:
+        signal = np.where(signal <= 0.0031308, 12.92 * signal,
+                          1.055 * signal ** (1.0 / 2.4) - 0.055)
+    elif phot.gamma != 1.0:
         signal = signal ** (1.0 / phot.gamma)
     if encoding == "mono16":
         return np.round(signal * 65535.0).astype(np.uint16)

@@ -32,6 +32,7 @@ from artcal_ros.core.params import output_path
 
 if TYPE_CHECKING:
     from artcal_ros.core.calibrate.result import CalibrationResult
+    from artcal_ros.core.detect import Detector
 
 
 class _ThreadRegistry:
@@ -109,13 +110,16 @@ def calibrate_kwargs(params: Mapping[str, Any]) -> dict[str, Any]:
             "zero_tangent_dist": bool(params["calibrate.zero_tangent_dist"])}
 
 
-def detect_views(frames: Iterable[tuple[str, np.ndarray]],
-                 board: Board) -> tuple[list[Detections], tuple[int, int]]:
+def detect_views(frames: Iterable[tuple[str, np.ndarray]], board: Board, *,
+                 detector: Detector | None = None
+                 ) -> tuple[list[Detections], tuple[int, int]]:
     """Collect views: detect the markers in every frame of one camera.
 
     Args:
         frames: (source name, image) pairs; images (H, W) uint8/uint16 or (H, W, 3) BGR.
         board: the board.
+        detector: the detector to use (its tone curve and lens estimate are then the
+            frames'); a default one without.
 
     Returns:
         (one Detections per frame, (width, height) pixels).
@@ -126,7 +130,7 @@ def detect_views(frames: Iterable[tuple[str, np.ndarray]],
     """
     from artcal_ros.core.detect import Detector
 
-    detector = Detector(board)
+    detector = detector if detector is not None else Detector(board)
     dets: list[Detections] = []
     size: tuple[int, int] | None = None
     for source, image in frames:

@@ -36,7 +36,9 @@ Pixel convention: OpenCV's, the center of the top-left pixel is (0, 0).
 
 from __future__ import annotations
 
+from collections.abc import Mapping
 from dataclasses import dataclass, replace
+from typing import Any
 
 import cv2
 import numpy as np
@@ -47,11 +49,24 @@ from artcal_ros.core.detect.candidates import CandidateFinder
 from artcal_ros.core.detect.centers import diagonal_centers
 from artcal_ros.core.detect.charuco import charuco_corners
 from artcal_ros.core.detect.chessboard import detect_chessboard
-from artcal_ros.core.detect.edges import refine_quads, same_edges
-from artcal_ros.core.detect.image import linearise, to_gray, to_gray8
+from artcal_ros.core.detect.edge_shift import (
+    MarkerGrowth,
+    compensate,
+    marker_growth,
+    view_shift_px,
+)
+from artcal_ros.core.detect.edges import EdgeFit, ProbeFit, refine_quads, same_edges
+from artcal_ros.core.detect.image import to_gray, to_gray8
 from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool, known_lens
 from artcal_ros.core.detect.patterns import inner_border_cells, outer_neighbours
 from artcal_ros.core.detect.sampling import border_is_dark
+from artcal_ros.core.detect.tone import (
+    CANDIDATES,
+    ToneCurve,
+    ToneEstimate,
+    TonePool,
+    probe_costs,
+)
 from artcal_ros.core.detect.verify import code_errors, neighbour_support, sides_are_edges
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import DetectionError
@@ -65,8 +80,11 @@ class DetectorConfig:
 
     Attributes:
         gamma: exponent that maps encoded grey values to linear light
-            (``linear = (v / full_scale) ** gamma``); 2.2 for sRGB-like 8-bit
-            images, 1.0 for linear (e.g. raw 16-bit) data.
+            (``linear = (v / full_scale) ** gamma``): 2.2 for sRGB-like 8-bit
+            images, 1.0 for linear (e.g. raw 16-bit) data; 0 (the default)
+            estimates the tone curve from the images' edges
+            (:mod:`~artcal_ros.core.detect.tone`), pooled over the frames a
+            :class:`Detector` sees.
         gamma_16bit: the same for 16-bit images (None: use ``gamma``).
         refine_edges: False keeps the quad finder's corners (for comparisons only).
         margin_px: edge profiles closer than this to a corner are skipped.
@@ -87,9 +105,12 @@ class DetectorConfig:
         pool_lens: pool the lens estimate over the frames a :class:`Detector` sees
             (one camera per detector; :meth:`Detector.reset_lens` forgets).
         adaptive_window_max: largest adaptive-threshold window of the quad finder.
+        edge_shift: measure each view's edge shift from its markers' size against
+            their pitch and remove it from the corners
+            (:mod:`~artcal_ros.core.detect.edge_shift`).
     """
 
-    gamma: float = 2.2
+    gamma: float = 0.0
     gamma_16bit: float | None = None
     refine_edges: bool = True
     margin_px: float = 1.5
@@ -103,13 +124,57 @@ class DetectorConfig:
     neighbour_tolerance: float = 0.25
     min_side_px: float = 6.0
     adaptive_window_max: int = 33
+    edge_shift: bool = True
+
+    @classmethod
+    def from_params(cls, params: Mapping[str, Any]) -> DetectorConfig:
+        """The configuration the parameters file asks for (``detector.gamma``)."""
+        return cls(gamma=float(params.get("detector.gamma", 0.0)))
 
     def __post_init__(self) -> None:
-        if not self.gamma > 0:
-            raise DetectionError(f"DetectorConfig.gamma: {self.gamma} must be > 0 (2.2 for "
-                                 "sRGB-like images, 1.0 for linear data)")
+        for name, g in (("gamma", self.gamma), ("gamma_16bit", self.gamma_16bit)):
+            if g is not None and not (g >= 0 and np.isfinite(g)):
+                raise DetectionError(f"DetectorConfig.{name}: {g} must be >= 0 (0: estimate "
+                                     "from the images, 2.2 for sRGB-like images, 1.0 for "
+                                     "linear data)")
         if self.adaptive_window_max < 3:
             raise DetectionError("DetectorConfig.adaptive_window_max must be >= 3")
+
+
+# most pilot sides a frame's tone probe re-fits per candidate curve
+_PROBE_SIDES = 16
+
+
+class _ToneProbe:
+    """Keeps the last fit :func:`refine_quads` offers; :meth:`commit` probes it into the pool."""
+
+    def __init__(self, pool: TonePool, curve: ToneCurve) -> None:
+        self.pool, self.curve = pool, curve
+        self.last: ProbeFit | None = None
+
+    def __call__(self, fit: ProbeFit) -> None:
+        self.last = fit
+
+    def commit(self) -> None:
+        """The candidate curves' costs on the kept fit's sides, added to the pool."""
+        if self.last is None:
+            return
+        fit, self.last = self.last, None
+        pick = np.linspace(0, len(fit.sides) - 1, min(len(fit.sides), _PROBE_SIDES))
+        sides = fit.sides[pick.astype(int)]
+        fit_values, values = fit.subset(sides, copies=len(CANDIDATES))
+        costs = probe_costs(fit_values, values, sides, self.curve, fit.coef, fit.blur)
+        self.pool.add(costs, len(values), len(sides))
+
+
+def _differs(a: ToneCurve, b: ToneCurve) -> bool:
+    """Two curves far enough apart that the edges are worth fitting again.
+
+    (0.12 in gamma moves a sharp edge by about 0.02 px; sRGB and gamma 2.2 differ
+    only in the darkest tenth, where no edge's transition is read, so sRGB counts as
+    its effective gamma 2.2.)
+    """
+    return abs(a.gamma - b.gamma) > 0.12
 
 
 def _clear_of_edge(corners: np.ndarray, w: int, h: int, clear: float) -> np.ndarray:
@@ -137,6 +202,7 @@ class Detector:
                 decode_rejected=self.config.decode_rejected,
                 min_side_px=self.config.min_side_px)
         self._lens_pool = LensPool()
+        self._tone_pool = TonePool()
         # ChArUco markers sit sqrt(2) squares apart at the closest (see neighbour_support)
         self._grow_to: float | None = None
         if board.board_type == "charuco":
@@ -159,6 +225,78 @@ class Detector:
         """Forget the lens distortion learnt from earlier frames (a different camera)."""
         self._lens_pool.reset()
 
+    def reset_tone(self) -> None:
+        """Forget the tone curve learnt from earlier frames (a different camera)."""
+        self._tone_pool.reset()
+
+    def _fixed_gamma(self, dtype: np.dtype) -> float:
+        """The configured gamma for images of ``dtype`` (0: estimate)."""
+        if dtype == np.uint16 and self.config.gamma_16bit is not None:
+            return self.config.gamma_16bit
+        return self.config.gamma
+
+    @property
+    def tone(self) -> ToneEstimate:
+        """The tone curve of the last frames: estimated (pooled so far) or the configured one."""
+        if self.config.gamma > 0:
+            return ToneEstimate(ToneCurve("power", self.config.gamma), 0.0, False)
+        return self._tone_pool.estimate()
+
+    def _probe(self, curve: ToneCurve) -> _ToneProbe:
+        """A ``tone_probe`` for :func:`refine_quads` that adds a frame to the pool."""
+        return _ToneProbe(self._tone_pool, curve)
+
+    def _refine(self, lin: np.ndarray, quads: np.ndarray, dark: np.ndarray, ids: np.ndarray,
+                lens: Lens | None, probe: _ToneProbe | None) -> EdgeFit:
+        """The edge fit of every quad (:func:`refine_quads` with this detector's settings)."""
+        return refine_quads(lin, quads, dark, self.board.bits, margin_px=self.config.margin_px,
+                            curve_min_px=self.config.curve_min_px, passes=1,
+                            allow_curvature=lens is None and self.config.estimate_lens,
+                            lens=lens,
+                            inner_same=inner_border_cells(self.board, ids,
+                                                          rows=self.config.code_rows),
+                            quiet_modules=self._quiet_modules,
+                            outer_same=self._outer_edges(ids),
+                            beyond_modules=self._quiet_modules,
+                            lens_pool=self._lens_pool if self.config.pool_lens else None,
+                            tone_probe=probe)
+
+    def _remove_edge_shift(self, corners: np.ndarray, centers: np.ndarray, ids: np.ndarray,
+                           lens: Lens | None) -> tuple[np.ndarray, float]:
+        """The corners with the view's edge shift removed, and the shift (NaN: unknown), px.
+
+        Measured and removed in undistorted pixels when a lens is known, so the
+        lens's change of scale between neighbours does not read as a shift.
+        """
+        m = len(ids)
+        q, c = corners, centers
+        if lens is not None and m:
+            q = lens.undistort(corners.reshape(-1, 2)).reshape(m, 4, 2)
+            c = lens.undistort(centers)
+        growth = marker_growth(ids, q, c, self.board)
+        # light spreading into dark grows a white-bordered marker and shrinks a black one:
+        # on a mixed board each polarity has its own shift (reported: the black ones')
+        inverted = np.array([self.board.is_inverted(int(i)) for i in ids], bool)
+        shift = float("nan")
+        q = q.copy()
+        for group in (~inverted, inverted):
+            if not group.any():
+                continue
+            part = MarkerGrowth(growth.growth[group], growth.px_per_m[group],
+                                growth.homography[group])
+            d, d_sd = view_shift_px(part, self.board)
+            if not np.isfinite(d_sd):
+                continue
+            # the quads shrink about their centres: the diagonals' crossing stays
+            q[group] = compensate(q[group], part, d, self.board)
+            if not np.isfinite(shift):
+                shift = d
+        if not np.isfinite(shift):
+            return corners, float("nan")
+        if lens is not None:
+            q = lens.distort(q.reshape(-1, 2)).reshape(m, 4, 2)
+        return q, shift
+
     def detect(self, image: np.ndarray, camera: CameraModel | HasCamera | None = None, *,
                source: str = "") -> Detections:
         """Detect the board's markers in one image.
@@ -179,10 +317,12 @@ class Detector:
         h, w = gray.shape
         gray8 = to_gray8(gray)
         sharpness = float(cv2.Laplacian(gray8, cv2.CV_32F).var())
-        gamma = self.config.gamma
-        if gray.dtype == np.uint16 and self.config.gamma_16bit is not None:
-            gamma = self.config.gamma_16bit
-        lin = linearise(gray, gamma)
+        gamma = self._fixed_gamma(gray.dtype)
+        probing = gamma == 0 and not self._tone_pool.settled
+        curve = ToneCurve("power", gamma) if gamma > 0 else self._tone_pool.estimate().curve
+        lin = curve.linearise(gray)
+        # a chessboard has no marker borders to estimate the tone curve from: the
+        # configured curve or the pool's (gamma 2.2 until markers say otherwise)
         if self._candidates is None:     # a chessboard: points only
             pids, pts, psig = detect_chessboard(gray8, lin, self.board)
             return replace(Detections.empty((w, h), source), sharpness=sharpness,
@@ -200,23 +340,26 @@ class Detector:
 
         lens: Lens | None = (
             known_lens(camera) if camera is not None else None)
+        fit_lens: Lens | None = None
         corners: np.ndarray
         if self.config.refine_edges and len(ids):
-            fit = refine_quads(lin, quads, dark, bits, margin_px=self.config.margin_px,
-                               curve_min_px=self.config.curve_min_px,
-                               passes=1,
-                               allow_curvature=lens is None and self.config.estimate_lens,
-                               lens=lens,
-                               inner_same=inner_border_cells(self.board, ids,
-                                                             rows=self.config.code_rows),
-                               quiet_modules=self._quiet_modules,
-                               outer_same=self._outer_edges(ids),
-                               beyond_modules=self._quiet_modules,
-                               lens_pool=self._lens_pool if self.config.pool_lens else None)
+            lens_state = dict(vars(self._lens_pool))
+            probe = self._probe(curve) if probing else None
+            fit = self._refine(lin, quads, dark, ids, lens, probe)
+            if probe is not None:
+                probe.commit()
+                better = self._tone_pool.estimate().curve
+                if _differs(better, curve):
+                    # this frame's edges again through the better curve (its lens
+                    # evidence replaces, not joins, that of the first fit)
+                    vars(self._lens_pool).update(lens_state)
+                    curve, lin = better, better.linearise(gray)
+                    fit = self._refine(lin, quads, dark, ids, lens, None)
             # a lens estimated from this frame's edges bends the fitted sides; it moves
             # the centers too once it is determined better than "no distortion" is
             # (|lam| above its standard deviation; a noisier one would add more error
             # to them than the distortion it removes)
+            fit_lens = fit.lens
             if isinstance(fit.lens, DivisionLens) and fit.lens.significance >= 1.0:
                 lens = fit.lens
             keep = fit.ok & same_edges(fit.corners_px, quads)
@@ -239,9 +382,16 @@ class Detector:
         corners, sigma, ids = corners[ok], sigma[ok], ids[ok]
 
         centers, center_sigma = diagonal_centers(corners, sigma, lens)
+        shift = float("nan")
+        # (a ChArUco board's markers are not on one pitch: its corners come from the saddles)
+        if (self.config.edge_shift and self.config.refine_edges
+                and self.board.board_type == "marker_grid"):
+            corners, shift = self._remove_edge_shift(corners, centers, ids,
+                                                     lens if lens is not None else fit_lens)
         order = np.argsort(ids)
         dets = Detections(ids[order], corners[order], centers[order], (w, h),
-                          sigma[order], center_sigma[order], sharpness, source)
+                          sigma[order], center_sigma[order], sharpness, source,
+                          edge_shift_px=shift)
         if self.board.board_type == "charuco":
             return dets.with_points(*charuco_corners(lin, self.board, dets.ids, dets.corners_px))
         return dets

@@ -23,8 +23,9 @@ corner k is the intersection of sides k-1 and k.
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
-from functools import partial
+from typing import Any
 
 import numpy as np
 
@@ -51,6 +52,8 @@ _FIT_TOL_PX = 3e-4
 # one side in _PILOT_EVERY, fitted first (_PILOT_STEPS steps from 0.6 px), gives that blur
 _PILOT_EVERY = 8
 _PILOT_STEPS = 8
+# a tone-curve probe re-fits the pilot sides from their fit, this many steps per curve
+_PROBE_STEPS = 2
 
 
 @dataclass(frozen=True)
@@ -78,7 +81,8 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
                  inner_same: np.ndarray | None = None,
                  quiet_modules: float = 1.0, outer_same: np.ndarray | None = None,
                  beyond_modules: float = 1.0, max_profiles: int = 40,
-                 lens_pool: LensPool | None = None) -> EdgeFit:
+                 lens_pool: LensPool | None = None,
+                 tone_probe: Callable[..., None] | None = None) -> EdgeFit:
     """Refine approximate quads to sub-pixel corners from their border edges.
 
     Args:
@@ -112,6 +116,9 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         max_profiles: most profiles per side (long sides are sampled sparser).
         lens_pool: evidence about the lens from earlier frames of the same camera
             (used and extended when the lens is estimated here).
+        tone_probe: optional ``tone_probe(probe_fit)``, called with a :class:`ProbeFit`
+            after every pass's fit; the last call is the final fit's (see
+            :func:`~artcal_ros.core.detect.tone.probe_costs`).
 
     Returns:
         the :class:`EdgeFit`.
@@ -152,7 +159,8 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
     later = lens is None and allow_curvature
     fit_blur = _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same,
                              quiet_modules, passes, order, None, margin_px,
-                             None if later else outer_same, beyond_modules)
+                             None if later else outer_same, beyond_modules,
+                             tone_probe=tone_probe)
     if later:
         used_lens = estimate_division(model, quads, t, present, lin.shape, pool=lens_pool)
     if used_lens is not None:
@@ -160,13 +168,13 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         model.coef[:, 2] = lens_bend(used_lens, a, u, n, length)
         _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same,
                       quiet_modules, 1, np.full(S, 2), used_lens, margin_px, outer_same,
-                      beyond_modules, fit_blur)
+                      beyond_modules, fit_blur, tone_probe=tone_probe)
     else:
         _drop_flat_parabolas(model)
         if later and outer_same is not None:
             _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same,
                           quiet_modules, 1, model.order, None, margin_px, outer_same,
-                          beyond_modules, fit_blur)
+                          beyond_modules, fit_blur, tone_probe=tone_probe)
     corners, sigma = intersect_sides(model, a, u, n, M)
     side_ok = model.count >= 4
     ok = side_ok.reshape(M, 4).all(axis=1) & np.isfinite(corners).all(axis=(1, 2))
@@ -246,8 +254,8 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
                   quiet_modules: float, passes: int, fit_order: np.ndarray,
                   lens: Lens | None = None,
                   corner_clear: float = 1.5, outer_same: np.ndarray | None = None,
-                  beyond_modules: float = 1.0, start_blur: np.ndarray | None = None
-                  ) -> np.ndarray:
+                  beyond_modules: float = 1.0, start_blur: np.ndarray | None = None,
+                  tone_probe: Callable[..., None] | None = None) -> np.ndarray:
     """Blurred-step model fits (see :mod:`~artcal_ros.core.detect.step_model`); updates ``model``.
 
     ``fit_order`` (S,) says per side whether the parabola term is free (3) or held
@@ -269,6 +277,7 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         corner_clear: see above, pixels.
         start_blur: (S,) the blur the model fit starts from (an earlier pass's), pixels;
             without, the frame's blur from a pilot fit of every 8th side.
+        tone_probe: see :func:`refine_quads`.
 
     Returns:
         (S,) the fitted blur, pixels.
@@ -313,10 +322,17 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
                             blur * (bits + 2) / model.length)
         else:
             far = np.zeros((len(sid), 1), dtype=np.float32)
-        fit = partial(fit_step_model, values, s_c, sid, S, basis, model.coef, far, m_s,
-                      fit_order, n, tol_px=_FIT_TOL_PX,
-                      outer=None if known is None else known[sid].astype(np.float32),
-                      quiet_px=None if known is None else quiet_modules * m_s)
+        common: dict[str, Any] = dict(
+            s=s_c, side=sid, n_sides=S, basis=basis, far=far, module_px=m_s,
+            fit_order=fit_order, normal=n, tol_px=_FIT_TOL_PX,
+            outer=None if known is None else known[sid].astype(np.float32),
+            quiet_px=None if known is None else quiet_modules * m_s)
+
+        def fit(vals: np.ndarray = values, coef0: np.ndarray = model.coef,
+                common: dict[str, Any] = common,
+                **kw: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+            return fit_step_model(vals, coef0=coef0, **common, **kw)
+
         if fit_blur is None:
             # the frame's blur from a few sides first: the others then start close to
             # theirs (blur hardly varies across a frame; 0.6 px is far from a sharp
@@ -325,12 +341,77 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
             pilot = fit(blur0=np.full(S, 0.6), iterations=_PILOT_STEPS, sides=few)[2]
             fit_blur = np.full(S, float(np.median(pilot[few])) if len(few) else 0.6)
         coef, cov, fit_blur = fit(blur0=fit_blur, iterations=_FIT_STEPS)
+        if tone_probe is not None:
+            few = np.flatnonzero(used > 0)[::_PILOT_EVERY]
+            if len(few):
+                tone_probe(ProbeFit(common, values, few, coef, fit_blur))
         blur = fit_blur
         model.coef = coef
         model.cov = cov
         model.count = used
     assert fit_blur is not None  # passes >= 1
     return fit_blur
+
+
+# the step model's per-sample inputs (the others are per side)
+_PER_SAMPLE = ("s", "side", "basis", "far", "module_px", "outer", "quiet_px")
+_PER_SIDE = ("fit_order", "normal")
+
+
+@dataclass(frozen=True)
+class ProbeFit:
+    """A pass's final step-model fit, kept so a tone probe can re-fit some of its sides.
+
+    Attributes:
+        common: the fit's inputs other than the values (:func:`fit_step_model`'s keywords).
+        values: (N,) the samples' linear values.
+        sides: (F,) int, the sides a probe may re-fit (every 8th fitted side).
+        coef, blur: (S, 3), (S,) the fit.
+    """
+
+    common: dict[str, Any]
+    values: np.ndarray
+    sides: np.ndarray
+    coef: np.ndarray
+    blur: np.ndarray
+
+    def subset(self, sides: np.ndarray, copies: int = 1
+               ) -> tuple[Callable[..., None], np.ndarray]:
+        """``fit_values(values, **kw)`` on ``copies`` copies of only ``sides``' samples,
+        and those samples' values (one copy).
+
+        The copies are one fit problem of ``copies * F`` sides (copy c's side f is
+        side ``c F + f``; ``values``, ``coef0``, ``blur0`` and ``cost_out`` come in that
+        order), so a probe of several curves is one call of the compiled fit, and the
+        re-fits touch none of the frame's other samples.
+        """
+        # the samples are ordered by side: each side's are one run
+        side = np.asarray(self.common["side"])
+        sides = np.asarray(sides)
+        lo = np.searchsorted(side, sides)
+        hi = np.searchsorted(side, sides, side="right")
+        keep = np.concatenate([np.arange(a, b) for a, b in zip(lo, hi, strict=True)]
+                              + [np.zeros(0, np.intp)])
+        f = len(sides)
+        local = np.repeat(np.arange(f), hi - lo)   # the kept samples' side, renumbered
+        sub: dict[str, Any] = {}
+        for k, v in self.common.items():
+            if k == "side":
+                sub[k] = np.concatenate([local + c * f for c in range(copies)])
+            elif k in _PER_SAMPLE and v is not None:
+                part = np.asarray(v)[keep]
+                sub[k] = np.concatenate([part] * copies)
+            elif k in _PER_SIDE:
+                sub[k] = np.concatenate([np.asarray(v)[sides]] * copies)
+            elif k == "n_sides":
+                sub[k] = copies * f
+            else:
+                sub[k] = v
+
+        def fit_values(values: np.ndarray, **kw: Any) -> None:
+            fit_step_model(values, iterations=_PROBE_STEPS, **sub, **kw)
+
+        return fit_values, self.values[keep]
 
 
 def _neighbour_lines(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:

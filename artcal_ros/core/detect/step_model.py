@@ -134,11 +134,13 @@ def _median_of(values: np.ndarray, s: np.ndarray, basis: np.ndarray, c: np.ndarr
 def _normal_equations(p: np.ndarray, lo: int, hi: int, values: np.ndarray, s: np.ndarray,
                       basis: np.ndarray, far: np.ndarray, module_px: np.ndarray,
                       outer: np.ndarray, quiet_px: np.ndarray, box_a: float, box_b: float,
-                      quad: float, N: np.ndarray, g: np.ndarray) -> float:
+                      quad: float, N: np.ndarray, g: np.ndarray) -> tuple[float, float]:
     """Gauss-Newton normal equations of one side's samples lo..hi at parameters p (6,).
 
-    Fills N (6, 6) = J^T J and g (6,) = J^T r; returns the cost r^T r. The model
-    is the module docstring's; p = (edge polynomial (3), A, D, log w).
+    Fills N (6, 6) = J^T J and g (6,) = J^T r; returns the cost r^T r and its part
+    from the samples across the edge's transition (within 0.7 px plus two blurs of
+    it, and less than half a module: where the tone curve shapes the profile). The
+    model is the module docstring's; p = (edge polynomial (3), A, D, log w).
     """
     rows = far.shape[1]
     has_outer = outer.shape[0] > 0
@@ -148,10 +150,11 @@ def _normal_equations(p: np.ndarray, lo: int, hi: int, values: np.ndarray, s: np
     w_eff = math.sqrt(w * w + box_var)
     shrink = (w * w) / (w_eff * w_eff)
     D = p[4]
+    band = 0.7 + 2.0 * w
     # the sums are kept in scalars (registers); an array would be re-read every sample
     n00 = n10 = n11 = n20 = n21 = n22 = n30 = n31 = n32 = n33 = n40 = 0.0
     n41 = n42 = n43 = n44 = n50 = n51 = n52 = n53 = n54 = n55 = 0.0
-    r0 = r1 = r2 = r3 = r4 = r5 = cost = 0.0
+    r0 = r1 = r2 = r3 = r4 = r5 = cost = band_cost = 0.0
     for i in range(lo, hi):
         d = s[i] - (basis[i, 0] * p[0] + basis[i, 1] * p[1] + basis[i, 2] * p[2])
         F, g1, gw = pixel_esf(d, w, box_a, box_b)
@@ -175,6 +178,8 @@ def _normal_equations(p: np.ndarray, lo: int, hi: int, values: np.ndarray, s: np
             gw -= c * (pdf * z * shrink)
         res = values[i] - (p[3] + D * F)
         cost += res * res
+        if abs(d) < band and abs(d) < 0.5 * module_px[i]:
+            band_cost += res * res
         if de == 0.0 and gw == 0.0:
             # every edge's tail is flat here (most of a sharp edge's band): only the
             # levels A and D see this sample
@@ -227,7 +232,7 @@ def _normal_equations(p: np.ndarray, lo: int, hi: int, values: np.ndarray, s: np
             N[a, b] = N[b, a] = lower[k]
             k += 1
     g[0], g[1], g[2], g[3], g[4], g[5] = r0, r1, r2, r3, r4, r5
-    return cost
+    return cost, band_cost
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
@@ -236,11 +241,11 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
                fit_order: np.ndarray, normal: np.ndarray, outer: np.ndarray,
                quiet_px: np.ndarray, cov_scale: float, iterations: int, blur0: np.ndarray,
                tol_px: float, which: np.ndarray, coef: np.ndarray, cov: np.ndarray,
-               blur: np.ndarray) -> None:
+               blur: np.ndarray, cost_out: np.ndarray) -> None:
     """Damped Gauss-Newton fit of the sides ``which``; see :func:`fit_step_model`.
 
-    Writes rows ``which`` of coef (S, 3), cov (S, 3, 3) and blur (S,) (and nothing
-    else, so threads can share them).
+    Writes rows ``which`` of coef (S, 3), cov (S, 3, 3), blur (S,) and cost_out (S,)
+    (and nothing else, so threads can share them).
     """
     for k in which:
         lo, hi = starts[k], starts[k + 1]
@@ -260,8 +265,8 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
         g = np.empty(6)
         Nt = np.empty((6, 6))
         gt = np.empty(6)
-        cost = _normal_equations(p, lo, hi, values, s, basis, far, module_px, outer,
-                                 quiet_px, box_a, box_b, quad, N, g)
+        cost, band_cost = _normal_equations(p, lo, hi, values, s, basis, far, module_px,
+                                            outer, quiet_px, box_a, box_b, quad, N, g)
         lam = 1e-3
         Nd = np.empty((6, 6))
         rhs = np.empty((6, 1))
@@ -294,15 +299,16 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
             trial[5] = max(trial[5], math.log(0.03))
             if moved < tol_px and abs(trial[5] - p[5]) < 0.02:
                 break
-            cost_t = _normal_equations(trial, lo, hi, values, s, basis, far, module_px,
-                                       outer, quiet_px, box_a, box_b, quad, Nt, gt)
+            cost_t, band_t = _normal_equations(trial, lo, hi, values, s, basis, far,
+                                               module_px, outer, quiet_px, box_a, box_b,
+                                               quad, Nt, gt)
             if cost_t < cost:
                 for a in range(6):
                     p[a] = trial[a]
                     g[a] = gt[a]
                     for b in range(6):
                         N[a, b] = Nt[a, b]
-                cost = cost_t
+                cost, band_cost = cost_t, band_t
                 lam *= 0.3
             else:
                 lam *= 10.0
@@ -323,6 +329,7 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
         for j in range(3):
             coef[k, j] = p[j]
         blur[k] = math.exp(p[5])
+        cost_out[k] = band_cost / max(p[4] * p[4], 1e-12)
 
 
 def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides: int,
@@ -331,7 +338,7 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
                    outer: np.ndarray | None = None, quiet_px: np.ndarray | None = None,
                    samples_per_px: float = 1.0, iterations: int = 4,
                    blur0: np.ndarray | None = None, tol_px: float = 0.0,
-                   sides: np.ndarray | None = None
+                   sides: np.ndarray | None = None, cost_out: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fit the blurred-step model (module docstring) to every side.
 
@@ -362,6 +369,9 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
             its log blur by less than 0.02), pixels.
         sides: optional (F,) int, the sides to fit (the others keep ``coef0``, ``blur0``
             and a zero covariance).
+        cost_out: optional (S,) filled with each fitted side's sum of squared residuals
+            across the edge's transition (see :func:`_normal_equations`), relative to
+            its squared contrast ``D ** 2``.
 
     Returns:
         coef (S, 3) edge polynomial, cov (S, 3, 3) its covariance, blur (S,) pixels
@@ -383,8 +393,9 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
             none if quiet_px is None else np.ascontiguousarray(quiet_px, f64),
             max(samples_per_px, 1.0), int(iterations), blur.copy(), float(tol_px))
     # sides in runs of about equal sample counts, on the worker threads
+    costs = np.zeros(n_sides) if cost_out is None else cost_out
     in_run = split_even(which, starts[which + 1] - starts[which])
-    run_all(lambda part: _fit_sides(*args, part, coef, cov, blur), in_run)
+    run_all(lambda part: _fit_sides(*args, part, coef, cov, blur, costs), in_run)
     return coef, cov, blur
 
 
