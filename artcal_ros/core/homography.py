@@ -32,10 +32,11 @@ def homographies(src: np.ndarray, dst: np.ndarray) -> np.ndarray:
 
 def apply_h(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
     """Apply (M, 3, 3) homographies to points (M, P, 2) -> (M, P, 2)."""
-    # One compiled signature: views (broadcast, sliced, transposed) are copied to plain
-    # arrays. A second layout would be compiled on first use, inside a running node.
-    H = np.ascontiguousarray(H, dtype=np.float64)
-    pts = np.ascontiguousarray(pts, dtype=np.float64)
+    # One compiled signature: views (broadcast, sliced, transposed) and read-only arrays
+    # are copied to plain writeable ones. Another layout or a read-only flag would be a
+    # second signature, compiled on first use inside a running node (holding the GIL).
+    H = np.require(H, np.float64, ["C", "W"])
+    pts = np.require(pts, np.float64, ["C", "W"])
     return _apply_kernel(H, pts)
 
 

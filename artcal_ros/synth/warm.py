@@ -17,6 +17,7 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector, detect
+from artcal_ros.core.detect.sampling import bilinear
 from artcal_ros.core.detect.tracking import MarkerTracker
 from artcal_ros.synth.camera import Camera
 from artcal_ros.synth.photometry import Photometry
@@ -45,6 +46,10 @@ def warm() -> int:
             for _ in range(2):  # seeded, then followed into the same frame
                 index, _markers = tracker.track(view.image)
                 tracker.seed(index, dets)
+    # Signatures the frames above may not reach: grey images sampled as float64 (a frame
+    # read through another tone curve) besides float32.
+    for dtype in (np.float32, np.float64):
+        bilinear(np.zeros((8, 8), dtype), np.array([1.5]), np.array([2.5]))
     return found
 
 
