@@ -14,18 +14,20 @@ from typing import Any
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
 
 from artcal_ros.core.board import Board
-from test.integration.ros_harness import Probe, calibrator_node, diagnostics_values
+from test.integration.qos import RELIABLE
+from test.integration.ros_harness import (
+    Probe,
+    calibrator_node,
+    diagnostics_values,
+)
 from test.integration.streaming import publish_until
 
 pytestmark = pytest.mark.integration
 
-RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                      reliability=ReliabilityPolicy.RELIABLE)
 NAME = "cal_mismatch"
 PREFIX = "markers seen, none from the configured board (ids 0..170, dictionary DICT_6X6_1000)"
 

@@ -21,7 +21,6 @@ from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from sensor_msgs.srv import SetCameraInfo
 from std_srvs.srv import Trigger
@@ -29,8 +28,9 @@ from std_srvs.srv import Trigger
 from artcal_ros.core.calibrate.quality import projection_difference
 from artcal_ros.core.camera import CameraModel
 from test.integration.frames import CalibrationBag, image_messages
+from test.integration.qos import BEST_EFFORT, LATCHED, RELIABLE
 from test.integration.ros_harness import (
-    ROOT,
+    PARAMS,
     NodeProcess,
     Probe,
     diagnostics_values,
@@ -40,14 +40,6 @@ from test.integration.streaming import publish_until, send_until_counted
 
 pytestmark = pytest.mark.integration
 
-PARAMS = ROOT / "config" / "calibrator.yaml"
-RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                      reliability=ReliabilityPolicy.RELIABLE)
-BEST_EFFORT = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                         reliability=ReliabilityPolicy.BEST_EFFORT)
-LATCHED = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                     reliability=ReliabilityPolicy.RELIABLE,
-                     durability=DurabilityPolicy.TRANSIENT_LOCAL)
 MIN_VIEWS = 10  # config/calibrator.yaml
 # Clean synthetic frames calibrate to within ~0.1-0.3 px of the true camera over the whole
 # image (projection difference, RMS). 1 px is where a calibration starts to be visibly

@@ -20,13 +20,13 @@ from typing import Any
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
 
 from test.integration.frames import CalibrationBag, image_messages
+from test.integration.qos import RELIABLE
 from test.integration.ros_harness import (
-    ROOT,
+    PARAMS,
     NodeProcess,
     Probe,
     diagnostics_values,
@@ -36,11 +36,8 @@ from test.integration.streaming import Streamer
 
 pytestmark = pytest.mark.integration
 
-PARAMS = ROOT / "config" / "calibrator.yaml"
 NAME = "cal_conc"
 TOPIC = "/conc/image"
-RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                      reliability=ReliabilityPolicy.RELIABLE)
 MIN_VIEWS = 3  # low, so that solves (and "already running") happen during the storm
 STREAM_FRAMES = 12  # distinct views, cycled
 STREAM_PERIOD_S = 0.15  # faster than detection (~0.5 s a frame): frames are dropped too

@@ -21,11 +21,11 @@ from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import Parameter as ParameterMsg
 from rcl_interfaces.msg import ParameterType, ParameterValue
 from rcl_interfaces.srv import SetParameters
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
 
 from test.integration.frames import CalibrationBag, image_messages
+from test.integration.qos import RELIABLE
 from test.integration.ros_harness import (
     Probe,
     calibrator_node,
@@ -37,8 +37,6 @@ from test.integration.streaming import Streamer
 pytestmark = pytest.mark.integration
 
 NAME = "cal_cases"
-RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                      reliability=ReliabilityPolicy.RELIABLE)
 MIN_VIEWS = 4
 VIEWS = 8  # collected before each solve case: a solve of a few seconds here
 QUICK_S = 10.0  # a reset or a parameter change never waits for the solve

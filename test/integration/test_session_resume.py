@@ -16,13 +16,13 @@ from pathlib import Path
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate.session_file import FILE_NAME, SessionFileError, read_session
 from test.integration.frames import CalibrationBag, image_messages
+from test.integration.qos import RELIABLE
 from test.integration.ros_harness import (
     NodeProcess,
     Probe,
@@ -34,8 +34,6 @@ from test.integration.streaming import Streamer
 
 pytestmark = pytest.mark.integration
 
-RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                      reliability=ReliabilityPolicy.RELIABLE)
 CAMERA = "resumecam"
 SAVED_VIEWS = 5  # wait for this many in the file before the kill
 MIN_VIEWS = 4

@@ -20,11 +20,11 @@ from typing import Any
 import numpy as np
 import pytest
 from diagnostic_msgs.msg import DiagnosticArray
-from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
 
 from test.integration.frames import CalibrationBag, image_messages
+from test.integration.qos import RELIABLE
 from test.integration.ros_harness import (
     NodeProcess,
     Probe,
@@ -36,8 +36,6 @@ from test.integration.streaming import Streamer
 
 pytestmark = pytest.mark.integration
 
-RELIABLE = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=10,
-                      reliability=ReliabilityPolicy.RELIABLE)
 # What a clean stop must never print.
 BAD_OUTPUT = ("Traceback", "KeyboardInterrupt", "RCLError", "Failed to publish",
               "context is invalid", "[ERROR]")
