@@ -46,8 +46,8 @@ def warm() -> int:
             for _ in range(2):  # seeded, then followed into the same frame
                 index, _markers = tracker.track(view.image)
                 tracker.seed(index, dets)
-    # Signatures the frames above may not reach: grey images sampled as float64 (a frame
-    # read through another tone curve) besides float32.
+    # A signature the frames above do not reach: grey images sampled as float64 besides
+    # float32 (a clean clone's test run compiled it after this warm-up).
     for dtype in (np.float32, np.float64):
         bilinear(np.zeros((8, 8), dtype), np.array([1.5]), np.array([2.5]))
     return found
