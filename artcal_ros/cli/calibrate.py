@@ -30,7 +30,12 @@ from typing import Any
 
 import numpy as np
 
-from artcal_ros.cli.common import add_params_arguments, board_overrides, params_from_args
+from artcal_ros.cli.common import (
+    add_board_arguments,
+    add_params_arguments,
+    board_overrides,
+    params_from_args,
+)
 from artcal_ros.cli.progress import Progress
 from artcal_ros.cli.skipped import SkippedFrames, read_image_file
 from artcal_ros.core.board import Board
@@ -67,15 +72,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--time-budget", type=float, default=40.0, metavar="S",
                         help="from a bag, space the frames so that reading and detecting "
                              "take about S seconds (default 40; 0 = no limit)")
-    parser.add_argument("--size", metavar="COLSxROWS", default=None,
-                        help="a chessboard of COLS x ROWS inner corners, as camera_calibration's "
-                             "--size 8x6 (sets board.type chessboard, board.cols, board.rows)")
-    parser.add_argument("--square", type=float, default=None, metavar="METRES",
-                        help="with --size: the chessboard's square side in metres, as "
-                             "camera_calibration's --square 0.108 (board.square_length)")
-    parser.add_argument("--target", metavar="target.yaml", default=None,
-                        help="a Kalibr target YAML (target_type aprilgrid or checkerboard), "
-                             "translated into the board.* parameters (docs/conventions.md)")
+    add_board_arguments(parser)
     parser.add_argument("--k3", action="store_true",
                         help="deprecated: the same as --set calibrate.k_coefficients=3 "
                              "(plumb_bob: also estimate k3, for strong wide-angle distortion)")

@@ -35,6 +35,20 @@ def params_from_args(args: argparse.Namespace,
     return load_params(args.params, overrides)
 
 
+def add_board_arguments(parser: argparse.ArgumentParser) -> None:
+    """Add the board options users bring from their home tools: camera_calibration's
+    ``--size COLSxROWS --square METRES`` and Kalibr's ``--target target.yaml``."""
+    parser.add_argument("--size", metavar="COLSxROWS", default=None,
+                        help="a chessboard of COLS x ROWS inner corners, as camera_calibration's "
+                             "--size 8x6 (sets board.type chessboard, board.cols, board.rows)")
+    parser.add_argument("--square", type=float, default=None, metavar="METRES",
+                        help="with --size: the chessboard's square side in metres, as "
+                             "camera_calibration's --square 0.108 (board.square_length)")
+    parser.add_argument("--target", metavar="target.yaml", default=None,
+                        help="a Kalibr target YAML (target_type aprilgrid or checkerboard), "
+                             "translated into the board.* parameters (docs/conventions.md)")
+
+
 def chessboard_overrides(size: str | None, square: float | None) -> dict[str, Any]:
     """camera_calibration's ``--size COLSxROWS --square METRES`` as ``board.*`` parameters.
 

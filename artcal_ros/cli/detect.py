@@ -2,6 +2,8 @@
 
     artcal detect frames/*.png --params config/calibrator.yaml --json detections.json
     artcal detect img.png --set board.polarity=mixed --json out.json --overlay overlays/
+    artcal detect left*.jpg --size 9x6 --square 0.025 --json chess.json   # a chessboard
+    artcal detect frames/*.png --target april_6x6.yaml --json tags.json     # a Kalibr target
 
 The JSON file is ``{"images": [{"file", "width", "height", "markers": [{"id",
 "corners": [[x, y] x 4], "center": [x, y]}]}]}`` in OpenCV pixel coordinates
@@ -23,7 +25,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-from artcal_ros.cli.common import add_params_arguments, params_from_args
+from artcal_ros.cli.common import (
+    add_board_arguments,
+    add_params_arguments,
+    board_overrides,
+    params_from_args,
+)
 from artcal_ros.cli.progress import Progress
 from artcal_ros.cli.skipped import SkippedFrames, read_image_file
 from artcal_ros.core.board import Board
@@ -37,6 +44,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("images", nargs="+", metavar="IMAGE",
                         help="image files (PNG, JPEG, TIFF, ...; 8 or 16 bit, grey or colour)")
     add_params_arguments(parser)
+    add_board_arguments(parser)
     parser.add_argument("--json", required=True, metavar="OUT.json",
                         help="where to write the detections")
     parser.add_argument("--overlay", metavar="DIR", default=None,
@@ -86,7 +94,7 @@ def run(args: argparse.Namespace) -> int:
     Images that cannot be read are skipped, counted and named in the summary; only when
     none can be read is it an error (exit 2).
     """
-    params = params_from_args(args)
+    params = params_from_args(args, board_overrides(args))
     board = Board.from_params(params)
     detector = Detector(board, DetectorConfig.from_params(params))
     out_json = Path(args.json)
