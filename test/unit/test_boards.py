@@ -11,6 +11,7 @@ import pytest
 
 from artcal_ros import Board
 from artcal_ros.core.detect import Detector
+from artcal_ros.core.detect.chessboard import squares_alternate
 from artcal_ros.core.errors import BoardError, ParameterError
 from artcal_ros.core.params import validate
 from artcal_ros.synth.camera import Camera
@@ -154,6 +155,39 @@ def test_chessboard_with_squares_of_six_pixels_is_found_and_measured() -> None:
     det = Detector(board).detect(view.image)
     assert len(det.point_ids) >= 50
     assert _errors(view, det.point_ids, det.points_px).max() < 0.15
+
+
+def test_chessboard_that_opencvs_finders_miss_for_its_small_squares_is_found() -> None:
+    board = Board(board_type="chessboard", cols=9, rows=6, square_length=0.01)
+    cam = Camera.preset("webcam")
+    rvec = np.array([0.5, 0.3, 0.2])
+    R = cv2.Rodrigues(rvec)[0]
+    tvec = np.array([0.05, -0.03, 1.3]) - R @ np.array([0.05, 0.035, 0.0])
+    view = render_view(board, cam, rvec, tvec, photometry=Photometry.clean(),
+                       rng=np.random.default_rng(12))
+    spacing = np.linalg.norm(np.diff(view.points_px.reshape(6, 9, 2), axis=1), axis=2)
+    assert view.points_inside.all() and np.median(spacing) < 4.8
+    flags = cv2.CALIB_CB_ADAPTIVE_THRESH | cv2.CALIB_CB_NORMALIZE_IMAGE
+    # the case: none of OpenCV's grid finders reads this board
+    assert not cv2.findChessboardCorners(view.image, (9, 6), flags=flags)[0]
+    assert not cv2.findChessboardCornersSB(view.image, (9, 6))[0]
+    det = Detector(board).detect(view.image)
+    assert len(det.point_ids) == 54
+    assert _errors(view, det.point_ids, det.points_px).max() < 0.15
+
+
+def test_grid_over_other_squares_is_not_taken_for_a_chessboard() -> None:
+    view = _views(CHESS, 1, 0.0, 4)[0]
+    grid = view.points_px.reshape(6, 9, 2)
+    assert squares_alternate(view.image, grid)
+    # the same grid over marker boards: code cells, margins and clutter, not a chequerboard
+    for other in _views(Board(), 4, 0.0, 9):
+        assert not squares_alternate(other.image, grid)
+    # a marker grid of small markers, whose code cells hold many X-corners
+    small = Board(cols=12, rows=8, marker_length=0.015, marker_separation=0.005)
+    detector = Detector(Board(board_type="chessboard", cols=9, rows=6, square_length=0.01))
+    for marker_view in _views(small, 3, 0.0, 8):
+        assert len(detector.detect(marker_view.image).point_ids) == 0
 
 
 def test_partial_chessboards_give_no_points() -> None:
