@@ -761,6 +761,11 @@ def main(argv: list[str] | None = None) -> int:
     with contextlib.ExitStack() as stack:
         root = args.keep or Path(stack.enter_context(tempfile.TemporaryDirectory(
             prefix="artcal_node_load_")))
+        # the node saves its session (and ROS its logs) under $HOME/.ros: keep the user's own
+        # ~/.ros/artcal/camera out of a benchmark
+        home = root / "home"
+        home.mkdir(parents=True, exist_ok=True)
+        os.environ["HOME"] = str(home)
         for w, h, rate, seconds in runs:
             spec = LoadSpec(int(w), int(h), float(rate), float(seconds), args.encoding,
                             views=args.views, reliable=args.reliable, depth=args.depth,
