@@ -16,19 +16,16 @@ import pytest
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate import calibrate
-from artcal_ros.core.coverage import (
+from artcal_ros.core.coverage import CoverageConfig, Snapshot, ViewCollector, empty_regions
+from artcal_ros.core.detections import Detections
+from artcal_ros.core.overlay import render_heat_map, render_overlay
+from artcal_ros.core.view_geometry import (
     COVERAGE_GRID,
     MIN_COVERAGE,
-    CoverageConfig,
-    Snapshot,
-    ViewCollector,
-    empty_regions,
     grid_cells,
     solve_points,
     view_geometry,
 )
-from artcal_ros.core.detections import Detections
-from artcal_ros.core.overlay import render_heat_map, render_overlay
 from artcal_ros.synth import Camera, project_points
 
 BOARD = Board(cols=8, rows=5)  # 0.62 x 0.38 m
