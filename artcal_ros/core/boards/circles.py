@@ -44,16 +44,18 @@ class CircleLayout:
         return 0.5 * DIAMETER_PER_SPACING * self.spacing
 
     def cells(self, ids: np.ndarray) -> np.ndarray:
-        """(M, 2) int64 (row i, column j) of circles in findCirclesGrid's order."""
+        """(M, 2) int64 (row, column) of circles on the lattice of spacing ``spacing``:
+        (i, j) of findCirclesGrid's order on a symmetric grid, (i, 2 j + i % 2) on an
+        asymmetric one (so that positions are linear in the cells on both)."""
         k = np.asarray(ids, dtype=np.int64).reshape(-1)
-        return np.stack([k // self.cols, k % self.cols], axis=1)
+        i, j = k // self.cols, k % self.cols
+        return np.stack([i, 2 * j + i % 2 if self.asymmetric else j], axis=1)
 
     def centres(self, ids: np.ndarray) -> np.ndarray:
         """(M, 3) float64 board-frame centres of circles, metres (z = 0)."""
         rc = self.cells(ids)
         out = np.zeros((len(rc), 3))
-        shift = rc[:, 0] % 2 if self.asymmetric else 0
-        out[:, 0] = ((2 * rc[:, 1] + shift) if self.asymmetric else rc[:, 1]) * self.spacing
+        out[:, 0] = rc[:, 1] * self.spacing
         out[:, 1] = rc[:, 0] * self.spacing
         return out
 

@@ -104,6 +104,28 @@ def orient_grid(grid: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray]
     return g, H
 
 
+def misplaced(points_px: np.ndarray, cells: np.ndarray, tolerance: float = 0.3) -> np.ndarray:
+    """(n,) bool: grid points off the place their neighbours predict (a blob OpenCV put in
+    the grid that is not that circle).
+
+    Each point is predicted by an affine map of the lattice cells (n, 2) fitted to the
+    points within two cells of it (itself left out); over so small a patch perspective
+    and lens are nearly affine. Flagged: off by more than ``tolerance`` local spacings.
+    """
+    n = len(points_px)
+    out = np.zeros(n, bool)
+    X = np.column_stack([cells[:, 1], cells[:, 0], np.ones(n)]).astype(np.float64)
+    for k in range(n):
+        near = np.abs(cells - cells[k]).max(axis=1) <= 2
+        near[k] = False
+        if near.sum() < 4:
+            continue
+        coef = np.linalg.lstsq(X[near], points_px[near], rcond=None)[0]
+        pitch = np.sqrt(abs(np.linalg.det(coef[:2])))
+        out[k] = np.linalg.norm(X[k] @ coef - points_px[k]) > tolerance * pitch
+    return out
+
+
 def _edge_points(lin: np.ndarray, centre: np.ndarray, radii: np.ndarray,
                  angles: np.ndarray) -> np.ndarray:
     """(K, 2) sub-pixel edge points of one dark circle: where each ray's linear intensity
@@ -177,7 +199,9 @@ def measure_circle(lin: np.ndarray, centre: np.ndarray, H: np.ndarray, board_cen
     # the circle's outline as the homography predicts it: its radius along each ray
     phi = np.linspace(0.0, 2 * np.pi, 32, endpoint=False)
     ring = board_centre + radius_m * np.stack([np.cos(phi), np.sin(phi)], axis=1)
-    outline = cv2.perspectiveTransform(ring.reshape(-1, 1, 2), H).reshape(-1, 2) - centre
+    # its shape about the predicted centre (the lens may move the whole circle by pixels)
+    mapped = cv2.perspectiveTransform(np.vstack([ring, board_centre]).reshape(-1, 1, 2), H)
+    outline = mapped[:-1, 0] - mapped[-1, 0]
     angles = np.linspace(0.0, 2 * np.pi, _RAYS, endpoint=False)
     ang_o = np.arctan2(outline[:, 1], outline[:, 0])
     rad_o = np.linalg.norm(outline, axis=1)
@@ -286,7 +310,13 @@ def detect_circles(gray8: np.ndarray, lin: np.ndarray, board: Board,
     n = len(obj)
     edges: list[np.ndarray] = []
     sigma = np.full(n, np.nan)
+    bad = misplaced(start, board.point_cells(board.point_ids))
+    if bad.mean() > 0.2:     # not a grid of this board's circles: no ids at all
+        return none
     for k in range(n):
+        if bad[k]:
+            edges.append(np.zeros((0, 2)))
+            continue
         _, rms, pts = measure_circle(lin32, start[k], H, obj[k], circles.radius)
         edges.append(pts)
         if np.isfinite(rms):
