@@ -110,19 +110,28 @@ def misplaced(points_px: np.ndarray, cells: np.ndarray, tolerance: float = 0.3) 
 
     Each point is predicted by an affine map of the lattice cells (n, 2) fitted to the
     points within two cells of it (itself left out); over so small a patch perspective
-    and lens are nearly affine. Flagged: off by more than ``tolerance`` local spacings.
+    and lens are nearly affine. The worst point beyond ``tolerance`` local spacings is
+    flagged and left out of its neighbours' fits, and so on until none is.
     """
     n = len(points_px)
     out = np.zeros(n, bool)
     X = np.column_stack([cells[:, 1], cells[:, 0], np.ones(n)]).astype(np.float64)
-    for k in range(n):
-        near = np.abs(cells - cells[k]).max(axis=1) <= 2
-        near[k] = False
-        if near.sum() < 4:
-            continue
-        coef = np.linalg.lstsq(X[near], points_px[near], rcond=None)[0]
-        pitch = np.sqrt(abs(np.linalg.det(coef[:2])))
-        out[k] = np.linalg.norm(X[k] @ coef - points_px[k]) > tolerance * pitch
+    near_all = np.abs(cells[:, None, :] - cells[None, :, :]).max(axis=2) <= 2
+    np.fill_diagonal(near_all, False)
+    for _ in range(n):
+        worst, worst_k = 1.0, -1
+        for k in np.flatnonzero(~out):
+            near = near_all[k] & ~out
+            if near.sum() < 4:
+                continue
+            coef = np.linalg.lstsq(X[near], points_px[near], rcond=None)[0]
+            pitch = np.sqrt(abs(np.linalg.det(coef[:2])))
+            miss = np.linalg.norm(X[k] @ coef - points_px[k]) / (tolerance * pitch + 1e-12)
+            if miss > worst:
+                worst, worst_k = miss, k
+        if worst_k < 0:
+            break
+        out[worst_k] = True
     return out
 
 
@@ -280,6 +289,64 @@ def fit_division_lens(centres_px: np.ndarray, obj: np.ndarray,
     return DivisionLens(0.5 * (lo + hi), centre, scale)
 
 
+def border_cells(board: Board) -> np.ndarray:
+    """(K, 2) int64 lattice cells (row, column) one lattice step outside the grid where the
+    pattern would have its next circles (on the printed margin of one spacing)."""
+    circles = board.circles
+    assert circles is not None
+    cells = board.point_cells(board.point_ids)
+    c0, c1 = int(cells[:, 1].min()), int(cells[:, 1].max())
+    rows = np.arange(-1, board.rows + 1)
+    cols = np.arange(c0 - 1, c1 + 2)
+    r, c = (a.ravel() for a in np.meshgrid(rows, cols, indexing="ij"))
+    beyond = (r < 0) | (r >= board.rows) | (c < c0) | (c > c1)
+    corner = ((r < 0) | (r >= board.rows)) & ((c < c0) | (c > c1))
+    fits = (c - r) % 2 == 0 if circles.asymmetric else np.ones_like(beyond)
+    keep = beyond & ~corner & fits
+    return np.stack([r[keep], c[keep]], axis=1).astype(np.int64)
+
+
+def grid_continues(lin: np.ndarray, board: Board, H_u: np.ndarray, lens: Lens,
+                   centres_px: np.ndarray, radius_px: float) -> bool:
+    """Whether the image shows circles where the pattern's next row or column would be:
+    then the print is larger than the board configured (or another grid), and ids counted
+    from this grid's edge would be wrong.
+
+    Args:
+        H_u: (3, 3) board metres -> straightened pixels. centres_px: (M, 2) the circles found.
+        radius_px: the circles' typical radius in the image.
+    """
+    s = board.square_length
+    obj = board.object_points()[:, :2]
+    # paper between the circles: half a step diagonally (symmetric), one step across
+    # (asymmetric: the empty lattice cells)
+    gap = obj + (np.array([s, 0.0]) if board.board_type == "acircles" else 0.5 * s)
+    x0, y0, x1, y1 = board.extent_m
+    gap = gap[(gap[:, 0] < x1) & (gap[:, 1] < y1)]
+
+    def image_of(board_xy: np.ndarray) -> np.ndarray:
+        mapped = cv2.perspectiveTransform(board_xy.reshape(-1, 1, 2).astype(np.float64), H_u)
+        return lens.distort(mapped.reshape(-1, 2))
+
+    h, w = lin.shape
+    r = max(1.0, 0.4 * radius_px)
+
+    def level(points: np.ndarray) -> np.ndarray:
+        out = np.full(len(points), np.nan)
+        for k, (x, y) in enumerate(points):
+            if r <= x < w - 1 - r and r <= y < h - 1 - r:
+                patch = lin[int(y - r):int(y + r) + 1, int(x - r):int(x + r) + 1]
+                out[k] = float(np.median(patch))
+        return out
+
+    seen = level(image_of(border_cells(board)[:, ::-1] * s))
+    if not np.isfinite(seen).any():
+        return False
+    dark = float(np.nanmedian(level(centres_px)))
+    paper = float(np.nanmedian(level(image_of(gap))))
+    return bool(np.nanmin(seen) < 0.5 * (dark + paper))
+
+
 def detect_circles(gray8: np.ndarray, lin: np.ndarray, board: Board,
                    lens: Lens | None = None) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """The circle grid's centres in one image.
@@ -332,5 +399,10 @@ def detect_circles(gray8: np.ndarray, lin: np.ndarray, board: Board,
     straight = [lens.undistort(e) if len(e) else e for e in edges]
     H_u, _ = _homography(obj[ok], lens.undistort(first[ok]))
     centres = _centres(_conics(straight, ok), ok, obj, H_u)
+    radius_px = float(np.median([np.median(np.linalg.norm(e - e.mean(axis=0), axis=1))
+                                 for e, good in zip(edges, ok, strict=True) if good]))
+    H_u, _ = _homography(obj[ok], centres[ok])
+    if grid_continues(lin32, board, H_u, lens, lens.distort(centres[ok]), radius_px):
+        return none
     ids = board.point_ids
     return ids[ok], lens.distort(centres[ok]), sigma[ok]
