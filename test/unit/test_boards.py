@@ -11,7 +11,7 @@ import pytest
 
 from artcal_ros import Board
 from artcal_ros.core.detect import Detector
-from artcal_ros.core.errors import BoardError, ParameterError
+from artcal_ros.core.errors import ParameterError
 from artcal_ros.core.params import validate
 from artcal_ros.synth.camera import Camera
 from artcal_ros.synth.photometry import Photometry

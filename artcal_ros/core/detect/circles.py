@@ -321,7 +321,7 @@ def grid_continues(lin: np.ndarray, board: Board, H_u: np.ndarray, lens: Lens,
     # paper between the circles: half a step diagonally (symmetric), one step across
     # (asymmetric: the empty lattice cells)
     gap = obj + (np.array([s, 0.0]) if board.board_type == "acircles" else 0.5 * s)
-    x0, y0, x1, y1 = board.extent_m
+    x1, y1 = board.extent_m[2:]
     gap = gap[(gap[:, 0] < x1) & (gap[:, 1] < y1)]
 
     def image_of(board_xy: np.ndarray) -> np.ndarray:
