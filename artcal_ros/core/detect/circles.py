@@ -289,9 +289,14 @@ def fit_division_lens(centres_px: np.ndarray, obj: np.ndarray,
     return DivisionLens(0.5 * (lo + hi), centre, scale)
 
 
-def border_cells(board: Board) -> np.ndarray:
-    """(K, 2) int64 lattice cells (row, column) one lattice step outside the grid where the
-    pattern would have its next circles (on the printed margin of one spacing)."""
+def border_cells(board: Board) -> tuple[np.ndarray, np.ndarray]:
+    """Lattice cells one lattice step outside the grid where the pattern would have its
+    next circles (on the printed margin).
+
+    Returns:
+        (cells (K, 2) int64 (row, column); side (K,) int64: 0 above, 1 below, 2 left,
+        3 right of the grid).
+    """
     circles = board.circles
     assert circles is not None
     cells = board.point_cells(board.point_ids)
@@ -303,7 +308,8 @@ def border_cells(board: Board) -> np.ndarray:
     corner = ((r < 0) | (r >= board.rows)) & ((c < c0) | (c > c1))
     fits = (c - r) % 2 == 0 if circles.asymmetric else np.ones_like(beyond)
     keep = beyond & ~corner & fits
-    return np.stack([r[keep], c[keep]], axis=1).astype(np.int64)
+    side = np.select([r < 0, r >= board.rows, c < c0], [0, 1, 2], 3)
+    return np.stack([r[keep], c[keep]], axis=1).astype(np.int64), side[keep]
 
 
 def grid_continues(lin: np.ndarray, board: Board, H_u: np.ndarray, lens: Lens,
@@ -339,12 +345,20 @@ def grid_continues(lin: np.ndarray, board: Board, H_u: np.ndarray, lens: Lens,
                 out[k] = float(np.median(patch))
         return out
 
-    seen = level(image_of(border_cells(board)[:, ::-1] * s))
-    if not np.isfinite(seen).any():
-        return False
+    cells, side = border_cells(board)
+    seen = level(image_of(cells[:, ::-1] * s))
     dark = float(np.nanmedian(level(centres_px)))
     paper = float(np.nanmedian(level(image_of(gap))))
-    return bool(np.nanmin(seen) < 0.5 * (dark + paper))
+    # circle-dark: nearer the circles' level than the paper's. A larger print shows a
+    # whole row or column of them; one dark spot (the board's edge, clutter past it, an
+    # extrapolation a few pixels off near the image's corner) is not that.
+    is_dark = seen < dark + 0.35 * (paper - dark)
+    for k in range(4):
+        visible = np.isfinite(seen[side == k])
+        hits = int(is_dark[side == k].sum())
+        if hits >= 2 and hits >= 0.5 * visible.sum():
+            return True
+    return False
 
 
 def detect_circles(gray8: np.ndarray, lin: np.ndarray, board: Board,
