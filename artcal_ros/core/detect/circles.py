@@ -149,25 +149,26 @@ def _edge_points(lin: np.ndarray, centre: np.ndarray, radii: np.ndarray,
     xy = centre + t[None, :, None] * d[:, None, :]                  # (R, T, 2)
     prof = cv2.remap(lin, xy[..., 0].astype(np.float32), xy[..., 1].astype(np.float32),
                      cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT, borderValue=-1.0)
-    out = np.full((len(angles), 2), np.nan)
-    for k in range(len(angles)):
-        rel = t / radii[k]
-        inside = prof[k, (rel >= _INNER[0]) & (rel <= _INNER[1])]
-        paper = prof[k, (rel >= _OUTER[0]) & (rel <= _OUTER[1])]
-        if inside.size == 0 or paper.size == 0 or min(inside.min(), paper.min()) < 0:
-            continue
-        lo, hi = float(inside.mean()), float(paper.mean())
-        if hi - lo <= 0.05 * hi:
-            continue
-        mid = 0.5 * (lo + hi)
-        seg = (rel > _INNER[1]) & (rel < _OUTER[0])
-        p, tt = prof[k, seg], t[seg]
-        up = np.flatnonzero((p[:-1] < mid) & (p[1:] >= mid))
-        if up.size != 1:     # no crossing, or a bumpy profile: no edge point on this ray
-            continue
-        i = int(up[0])
-        s = tt[i] + (mid - p[i]) / (p[i + 1] - p[i]) * (tt[i + 1] - tt[i])
-        out[k] = centre + s * d[k]
+    rel = t[None, :] / radii[:, None]
+    inner = (rel >= _INNER[0]) & (rel <= _INNER[1])
+    outer = (rel >= _OUTER[0]) & (rel <= _OUTER[1])
+    n_in, n_out = inner.sum(axis=1), outer.sum(axis=1)
+    lo = np.where(inner, prof, 0.0).sum(axis=1) / np.maximum(n_in, 1)
+    hi = np.where(outer, prof, 0.0).sum(axis=1) / np.maximum(n_out, 1)
+    # rays leaving the image (read as -1), or without contrast, give no edge point
+    off = np.where(inner | outer, prof, 1.0).min(axis=1) < 0
+    good = (n_in > 0) & (n_out > 0) & ~off & (hi - lo > 0.05 * hi)
+    mid = 0.5 * (lo + hi)[:, None]
+    seg = (rel > _INNER[1]) & (rel < _OUTER[0])
+    up = (prof[:, :-1] < mid) & (prof[:, 1:] >= mid) & seg[:, :-1] & seg[:, 1:]
+    good &= up.sum(axis=1) == 1      # no crossing, or a bumpy profile: no edge point
+    i = np.argmax(up, axis=1)
+    rows = np.arange(len(angles))
+    p0, p1 = prof[rows, i], prof[rows, i + 1]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        s = t[i] + (mid[:, 0] - p0) / (p1 - p0) * _STEP_PX
+    out = centre + s[:, None] * d
+    out[~good] = np.nan
     return out
 
 
