@@ -9,18 +9,23 @@ the print facing the camera. Both grids look the same turned by a half turn (a s
 symmetric grid also by a quarter turn); of the orders that fit, the one whose point 0 is
 nearest the image's top-left corner (least x + y, as for the chessboard and in
 camera_calibration) is taken. Ids are exact up to that symmetry, which no image of the
-print can resolve and a calibration does not need.
+print can resolve and a calibration does not need. A blob off the place its grid
+neighbours predict is left out, and a view is refused when circles show where the
+pattern's next row or column would be (a larger print: OpenCV finds a smaller grid in it,
+and ids counted from its edge would be wrong).
 
 Centres: OpenCV's blob centres are the centroids of thresholded blobs, and even an exact
 ellipse's centre is not the image of the circle's centre under perspective. Each circle
 is measured again in linear light: its edge is found along rays from the centre (where the
-intensity crosses halfway between the inside's and the paper's level), an ellipse (conic)
-is fitted to those edge points, and the image of the circle's centre is taken as the pole,
-with respect to that conic, of the image of the board plane's line at infinity (from the
-homography of the grid): projective maps keep poles and polars, and the centre of a circle
-is the pole of the line at infinity. The homography is refitted to the corrected centres
-once. The lens is not modelled: across one circle it bends the outline by second-order
-terms only.
+intensity crosses halfway between the inside's and the paper's level), and a conic is
+fitted to those edge points. The image of the circle's centre is the pole, with respect
+to that conic, of the image of the board plane's line at infinity (from the grid's
+homography): projective maps keep poles and polars, and the centre of a circle is the pole
+of the line at infinity. The lens would bend outlines and grid away from a conic and a
+homography, so the edge points are first straightened through a known lens, or through a
+one-term division lens fitted to the view (the one under which the circles' centres best
+fit a homography); conics, homography and poles are computed there and the centres mapped
+back to the image.
 """
 
 from __future__ import annotations
