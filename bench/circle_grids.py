@@ -25,7 +25,8 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector
-from artcal_ros.core.detect.circles import find_circle_grid, measure_circle, orient_grid
+from artcal_ros.core.detect.circle_grid import find_circle_grid, orient_grid
+from artcal_ros.core.detect.circles import measure_circle
 from artcal_ros.core.detect.image import to_gray8
 from artcal_ros.core.detect.tone import ToneCurve
 from artcal_ros.synth import Camera, Photometry, random_poses, render_view

@@ -14,7 +14,7 @@ import pytest
 from artcal_ros import Board
 from artcal_ros.cli.main import main as artcal
 from artcal_ros.core.detect import Detector
-from artcal_ros.core.detect.circles import find_circle_grid, orient_grid
+from artcal_ros.core.detect.circle_grid import find_circle_grid, orient_grid
 from artcal_ros.core.detect.image import to_gray8
 from artcal_ros.core.errors import BoardError, ParameterError
 from artcal_ros.core.params import validate

@@ -3,7 +3,8 @@
 A circle grid has no code, so a view names its circles only when OpenCV's
 ``findCirclesGrid`` finds the whole ``cols`` x ``rows`` grid; partial views give no points.
 
-Identities: the grid's order is checked against the board: the order (among the grid's
+Identities (:mod:`artcal_ros.core.detect.circle_grid`): the grid's order is checked
+against the board: the order (among the grid's
 flips and turns) must fit a homography from the board's object points to the image with
 the print facing the camera. Both grids look the same turned by a half turn (a square
 symmetric grid also by a quarter turn); of the orders that fit, the one whose point 0 is
@@ -34,110 +35,19 @@ import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
+from artcal_ros.core.detect.circle_grid import (
+    find_circle_grid,
+    grid_continues,
+    homography,
+    misplaced,
+    orient_grid,
+)
 from artcal_ros.core.detect.lens import DivisionLens, Lens
 
 _RAYS = 64
 _STEP_PX = 0.25
 _INNER = (0.15, 0.5)    # the dark inside, fractions of the circle's radius along a ray
 _OUTER = (1.5, 1.9)     # the paper around it (neighbours start beyond 2 radii)
-
-
-def _blob_detector() -> cv2.SimpleBlobDetector:
-    p = cv2.SimpleBlobDetector.Params()
-    # OpenCV's defaults (25 - 5000 px) miss small far circles and large near ones
-    p.minArea = 8.0
-    p.maxArea = 1e6
-    p.minDistBetweenBlobs = 3.0
-    return cv2.SimpleBlobDetector.create(p)
-
-
-def find_circle_grid(gray8: np.ndarray, board: Board) -> np.ndarray | None:
-    """(rows, cols, 2) float64 OpenCV's grid of blob centres in its own order, or None."""
-    flags = (cv2.CALIB_CB_ASYMMETRIC_GRID if board.board_type == "acircles"
-             else cv2.CALIB_CB_SYMMETRIC_GRID)
-    size = (board.cols, board.rows)
-    detector = _blob_detector()
-    # the default grid search fails on steep views that clustering finds, and the reverse
-    for extra in (0, cv2.CALIB_CB_CLUSTERING):
-        found, centres = cv2.findCirclesGrid(gray8, size, flags=flags | extra,
-                                             blobDetector=detector)
-        if found and centres is not None and len(centres) == board.cols * board.rows:
-            return np.asarray(centres, dtype=np.float64).reshape(board.rows, board.cols, 2)
-    return None
-
-
-def _orders(grid: np.ndarray) -> list[np.ndarray]:
-    """The grid's re-orderings that keep its shape: flips, half turn, and on a square grid
-    the transposes and quarter turns."""
-    out = [grid, grid[::-1, ::-1], grid[::-1], grid[:, ::-1]]
-    if grid.shape[0] == grid.shape[1]:
-        t = grid.transpose(1, 0, 2)
-        out += [t, t[::-1, ::-1], t[::-1], t[:, ::-1]]
-    return out
-
-
-def _homography(board_xy: np.ndarray, image_xy: np.ndarray) -> tuple[np.ndarray, float]:
-    """Least-squares homography board (M, 2) metres -> image (M, 2) px and its RMS residual."""
-    H, _ = cv2.findHomography(board_xy, image_xy, 0)
-    if H is None:
-        return np.eye(3), float("inf")
-    p = cv2.perspectiveTransform(board_xy.reshape(-1, 1, 2), H).reshape(-1, 2)
-    return H, float(np.sqrt(np.mean(np.sum((p - image_xy) ** 2, axis=1))))
-
-
-def orient_grid(grid: np.ndarray, board: Board) -> tuple[np.ndarray, np.ndarray] | None:
-    """The grid re-ordered to the board's ids (see the module docstring) and its homography
-    (board metres -> image px); None when no order fits the board."""
-    obj = board.object_points()[:, :2]
-    spacing_px = np.median(np.linalg.norm(np.diff(grid.reshape(-1, 2), axis=0), axis=1))
-    fits = []
-    for g in _orders(grid):
-        H, rms = _homography(obj, g.reshape(-1, 2))
-        # the print faces the camera: the board's x and y axes keep their handedness
-        J = H[:2, :2] - np.outer(H[:2, 2], H[2, :2])
-        if np.linalg.det(J) > 0:
-            fits.append((rms, g, H))
-    if not fits:
-        return None
-    best = min(f[0] for f in fits)
-    # a homography fits the true order to the lens's bending (a few px at a webcam's corner);
-    # a wrong order is off by whole spacings
-    if best > 0.25 * spacing_px:
-        return None
-    good = [f for f in fits if f[0] <= best + 0.1 * spacing_px]
-    _, g, H = min(good, key=lambda f: float(f[1][0, 0].sum()))
-    return g, H
-
-
-def misplaced(points_px: np.ndarray, cells: np.ndarray, tolerance: float = 0.3) -> np.ndarray:
-    """(n,) bool: grid points off the place their neighbours predict (a blob OpenCV put in
-    the grid that is not that circle).
-
-    Each point is predicted by an affine map of the lattice cells (n, 2) fitted to the
-    points within two cells of it (itself left out); over so small a patch perspective
-    and lens are nearly affine. The worst point beyond ``tolerance`` local spacings is
-    flagged and left out of its neighbours' fits, and so on until none is.
-    """
-    n = len(points_px)
-    out = np.zeros(n, bool)
-    X = np.column_stack([cells[:, 1], cells[:, 0], np.ones(n)]).astype(np.float64)
-    near_all = np.abs(cells[:, None, :] - cells[None, :, :]).max(axis=2) <= 2
-    np.fill_diagonal(near_all, False)
-    for _ in range(n):
-        worst, worst_k = 1.0, -1
-        for k in np.flatnonzero(~out):
-            near = near_all[k] & ~out
-            if near.sum() < 4:
-                continue
-            coef = np.linalg.lstsq(X[near], points_px[near], rcond=None)[0]
-            pitch = np.sqrt(abs(np.linalg.det(coef[:2])))
-            miss = np.linalg.norm(X[k] @ coef - points_px[k]) / (tolerance * pitch + 1e-12)
-            if miss > worst:
-                worst, worst_k = miss, k
-        if worst_k < 0:
-            break
-        out[worst_k] = True
-    return out
 
 
 def _edge_points(lin: np.ndarray, centre: np.ndarray, radii: np.ndarray,
@@ -263,7 +173,7 @@ def _centres(conics: np.ndarray, ok: np.ndarray, obj: np.ndarray, H: np.ndarray,
         line = np.linalg.solve(H.T, np.array([0.0, 0.0, 1.0]))
         for k in np.flatnonzero(ok):
             centres[k] = pole_of_line(conics[k], line)
-        H, _ = _homography(obj[ok], centres[ok])
+        H, _ = homography(obj[ok], centres[ok])
     return centres
 
 
@@ -277,7 +187,7 @@ def fit_division_lens(centres_px: np.ndarray, obj: np.ndarray,
 
     def cost(lam: float) -> float:
         u = DivisionLens(lam, centre, scale).undistort(centres_px)
-        return _homography(obj, u)[1]
+        return homography(obj, u)[1]
 
     lo, hi = -0.6, 0.6
     g = (np.sqrt(5.0) - 1) / 2
@@ -293,78 +203,6 @@ def fit_division_lens(centres_px: np.ndarray, obj: np.ndarray,
             b = lo + g * (hi - lo)
             fb = cost(b)
     return DivisionLens(0.5 * (lo + hi), centre, scale)
-
-
-def border_cells(board: Board) -> tuple[np.ndarray, np.ndarray]:
-    """Lattice cells one lattice step outside the grid where the pattern would have its
-    next circles (on the printed margin).
-
-    Returns:
-        (cells (K, 2) int64 (row, column); side (K,) int64: 0 above, 1 below, 2 left,
-        3 right of the grid).
-    """
-    circles = board.circles
-    assert circles is not None
-    cells = board.point_cells(board.point_ids)
-    c0, c1 = int(cells[:, 1].min()), int(cells[:, 1].max())
-    rows = np.arange(-1, board.rows + 1)
-    cols = np.arange(c0 - 1, c1 + 2)
-    r, c = (a.ravel() for a in np.meshgrid(rows, cols, indexing="ij"))
-    beyond = (r < 0) | (r >= board.rows) | (c < c0) | (c > c1)
-    corner = ((r < 0) | (r >= board.rows)) & ((c < c0) | (c > c1))
-    fits = (c - r) % 2 == 0 if circles.asymmetric else np.ones_like(beyond)
-    keep = beyond & ~corner & fits
-    side = np.select([r < 0, r >= board.rows, c < c0], [0, 1, 2], 3)
-    return np.stack([r[keep], c[keep]], axis=1).astype(np.int64), side[keep]
-
-
-def grid_continues(lin: np.ndarray, board: Board, H_u: np.ndarray, lens: Lens,
-                   centres_px: np.ndarray, radius_px: float) -> bool:
-    """Whether the image shows circles where the pattern's next row or column would be:
-    then the print is larger than the board configured (or another grid), and ids counted
-    from this grid's edge would be wrong.
-
-    Args:
-        H_u: (3, 3) board metres -> straightened pixels. centres_px: (M, 2) the circles found.
-        radius_px: the circles' typical radius in the image.
-    """
-    s = board.square_length
-    obj = board.object_points()[:, :2]
-    # paper between the circles: half a step diagonally (symmetric), one step across
-    # (asymmetric: the empty lattice cells)
-    gap = obj + (np.array([s, 0.0]) if board.board_type == "acircles" else 0.5 * s)
-    x1, y1 = board.extent_m[2:]
-    gap = gap[(gap[:, 0] < x1) & (gap[:, 1] < y1)]
-
-    def image_of(board_xy: np.ndarray) -> np.ndarray:
-        mapped = cv2.perspectiveTransform(board_xy.reshape(-1, 1, 2).astype(np.float64), H_u)
-        return lens.distort(mapped.reshape(-1, 2))
-
-    h, w = lin.shape
-    r = max(1.0, 0.4 * radius_px)
-
-    def level(points: np.ndarray) -> np.ndarray:
-        out = np.full(len(points), np.nan)
-        for k, (x, y) in enumerate(points):
-            if r <= x < w - 1 - r and r <= y < h - 1 - r:
-                patch = lin[int(y - r):int(y + r) + 1, int(x - r):int(x + r) + 1]
-                out[k] = float(np.median(patch))
-        return out
-
-    cells, side = border_cells(board)
-    seen = level(image_of(cells[:, ::-1] * s))
-    dark = float(np.nanmedian(level(centres_px)))
-    paper = float(np.nanmedian(level(image_of(gap))))
-    # circle-dark: nearer the circles' level than the paper's. A larger print shows a
-    # whole row or column of them; one dark spot (the board's edge, clutter past it, an
-    # extrapolation a few pixels off near the image's corner) is not that.
-    is_dark = seen < dark + 0.35 * (paper - dark)
-    for k in range(4):
-        visible = np.isfinite(seen[side == k])
-        hits = int(is_dark[side == k].sum())
-        if hits >= 2 and hits >= 0.5 * visible.sum():
-            return True
-    return False
 
 
 def detect_circles(gray8: np.ndarray, lin: np.ndarray, board: Board,
@@ -417,11 +255,11 @@ def detect_circles(gray8: np.ndarray, lin: np.ndarray, board: Board,
         lens = fit_division_lens(first[ok], obj[ok], (lin.shape[1], lin.shape[0]))
     # in straightened pixels the board's image is a homography and each outline a conic
     straight = [lens.undistort(e) if len(e) else e for e in edges]
-    H_u, _ = _homography(obj[ok], lens.undistort(first[ok]))
+    H_u, _ = homography(obj[ok], lens.undistort(first[ok]))
     centres = _centres(_conics(straight, ok), ok, obj, H_u)
     radius_px = float(np.median([np.median(np.linalg.norm(e - e.mean(axis=0), axis=1))
                                  for e, good in zip(edges, ok, strict=True) if good]))
-    H_u, _ = _homography(obj[ok], centres[ok])
+    H_u, _ = homography(obj[ok], centres[ok])
     if grid_continues(lin32, board, H_u, lens, lens.distort(centres[ok]), radius_px):
         return none
     ids = board.point_ids
