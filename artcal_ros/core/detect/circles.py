@@ -4,9 +4,8 @@ A circle grid has no code, so a view names its circles only when OpenCV's
 ``findCirclesGrid`` finds the whole ``cols`` x ``rows`` grid; partial views give no points.
 
 Identities (:mod:`artcal_ros.core.detect.circle_grid`): the grid's order is checked
-against the board: the order (among the grid's
-flips and turns) must fit a homography from the board's object points to the image with
-the print facing the camera. Both grids look the same turned by a half turn (a square
+against the board: the order (among the grid's flips and turns) must fit a homography from
+the board's object points to the image with the print facing the camera. Both grids look the same turned by a half turn (a square
 symmetric grid also by a quarter turn); of the orders that fit, the one whose point 0 is
 nearest the image's top-left corner (least x + y, as for the chessboard and in
 camera_calibration) is taken. Ids are exact up to that symmetry, which no image of the
