@@ -2,7 +2,8 @@
 
     python -m bench.boards            # the numbers in docs/benchmarks.md, "Other boards"
     python -m bench.boards --quick    # fewer views
-    python -m bench.boards --circles  # only the circle grid and calibration tables
+    python -m bench.boards --circles  # only the circle grid table
+    python -m bench.boards --calibration  # only the calibration table
 
 Fresh renders (seeds the unit tests do not use) through the ``webcam`` preset (640 x 480,
 strong barrel distortion) and the ``hd`` preset, under two photometric conditions:
@@ -267,7 +268,7 @@ def calibration(camera: str, views: int, seed: int) -> dict[str, str]:
 def _table(title: str, rows: dict[str, dict[str, str]]) -> None:
     keys = list(next(iter(rows.values())))
     print(f"\n{title}\n")
-    print("| case | " + " | ".join(keys) + " |")
+    print("| case | " + " | ".join(keys) + " |", flush=True)
     print("|---|" + "---|" * len(keys))
     for case, row in rows.items():
         print(f"| {case} | " + " | ".join(row[k] for k in keys) + " |")
@@ -277,32 +278,38 @@ def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer views")
     parser.add_argument("--circles", action="store_true",
-                        help="only the circle grid and calibration tables")
+                        help="only the circle grid table (with --calibration: and that one)")
+    parser.add_argument("--calibration", action="store_true",
+                        help="only the calibration table (with --circles: and that one)")
     args = parser.parse_args()
     views = 6 if args.quick else 20
+    everything = not (args.circles or args.calibration)
     chess_rows, charuco_rows, april_rows, circle_rows = {}, {}, {}, {}
     for camera in ("webcam", "hd"):
         for k, condition in enumerate(CONDITIONS):
             case = f"{camera} {condition}"
-            if not args.circles:
+            if everything:
                 chess_rows[case] = chessboard(camera, condition, views, 101 + k)
                 charuco_rows[case] = charuco(camera, condition, views, 201 + k)
                 april_rows[case] = aprilgrid(camera, condition, views, 501 + k)
-            for board in (CIRCLES, ACIRCLES):
-                circle_rows[f"{board.board_type} {case}"] = circle_grid(
-                    board, camera, CONDITIONS[condition], views, 601 + k)
-    if not args.circles:
+            if everything or args.circles:
+                for board in (CIRCLES, ACIRCLES):
+                    circle_rows[f"{board.board_type} {case}"] = circle_grid(
+                        board, camera, CONDITIONS[condition], views, 601 + k)
+    if everything:
         _table("Chessboard 9x6, whole-board views: frames found, RMS error px", chess_rows)
         _table("ChArUco 7x5, half the views partial", charuco_rows)
         _table("AprilGrid 6x6, half the views partial: tags, corner RMS px", april_rows)
-    _table("Circle grids (circles 9x6, acircles 4x11), whole-board views: frames found, "
-           "centre RMS px", circle_rows)
-    if not args.circles:
+    if circle_rows:
+        _table("Circle grids (circles 9x6, acircles 4x11), whole-board views: frames found, "
+               "centre RMS px", circle_rows)
+    if everything:
         _table("Chessboard 9x6, squares of 4.5-6 px: frames found",
                {"webcam clean": small_squares("webcam", views, 401)})
-    calib_rows = {camera: calibration(camera, 20, 301 + k)
-                  for k, camera in enumerate(("webcam", "hd"))}
-    _table("Calibration, 20 realistic views: projection difference RMS px", calib_rows)
+    if everything or args.calibration:
+        calib_rows = {camera: calibration(camera, 20, 301 + k)
+                      for k, camera in enumerate(("webcam", "hd"))}
+        _table("Calibration, 20 realistic views: projection difference RMS px", calib_rows)
 
 if __name__ == "__main__":
     main()

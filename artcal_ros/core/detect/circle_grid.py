@@ -20,13 +20,15 @@ from artcal_ros.core.board import Board
 from artcal_ros.core.detect.lens import Lens
 
 
-def _blob_detector() -> cv2.SimpleBlobDetector:
-    p = cv2.SimpleBlobDetector.Params()
-    # OpenCV's defaults (25 - 5000 px) miss small far circles and large near ones
-    p.minArea = 8.0
-    p.maxArea = 1e6
-    p.minDistBetweenBlobs = 3.0
-    return cv2.SimpleBlobDetector.create(p)
+def _blob_detectors() -> tuple[cv2.SimpleBlobDetector, ...]:
+    """OpenCV's default blob detector, then one for small far and large near circles too
+    (OpenCV's area range is 25 - 5000 px; the wider one also takes more clutter, which
+    can spoil a grid the default finds)."""
+    wide = cv2.SimpleBlobDetector.Params()
+    wide.minArea = 8.0
+    wide.maxArea = 1e6
+    wide.minDistBetweenBlobs = 3.0
+    return (cv2.SimpleBlobDetector.create(), cv2.SimpleBlobDetector.create(wide))
 
 
 def find_circle_grid(gray8: np.ndarray, board: Board) -> np.ndarray | None:
@@ -34,13 +36,13 @@ def find_circle_grid(gray8: np.ndarray, board: Board) -> np.ndarray | None:
     flags = (cv2.CALIB_CB_ASYMMETRIC_GRID if board.board_type == "acircles"
              else cv2.CALIB_CB_SYMMETRIC_GRID)
     size = (board.cols, board.rows)
-    detector = _blob_detector()
-    # the default grid search fails on steep views that clustering finds, and the reverse
-    for extra in (0, cv2.CALIB_CB_CLUSTERING):
-        found, centres = cv2.findCirclesGrid(gray8, size, flags=flags | extra,
-                                             blobDetector=detector)
-        if found and centres is not None and len(centres) == board.cols * board.rows:
-            return np.asarray(centres, dtype=np.float64).reshape(board.rows, board.cols, 2)
+    for detector in _blob_detectors():
+        # the default grid search fails on steep views that clustering finds, and the reverse
+        for extra in (0, cv2.CALIB_CB_CLUSTERING):
+            found, centres = cv2.findCirclesGrid(gray8, size, flags=flags | extra,
+                                                 blobDetector=detector)
+            if found and centres is not None and len(centres) == board.cols * board.rows:
+                return np.asarray(centres, dtype=np.float64).reshape(board.rows, board.cols, 2)
     return None
 
 
