@@ -1,7 +1,9 @@
-"""Chessboard and ChArUco benchmarks against renderer truth, with OpenCV on the same frames.
+"""Chessboard, ChArUco, AprilGrid and circle grids against renderer truth, with OpenCV alike.
 
     python -m bench.boards            # the numbers in docs/benchmarks.md, "Other boards"
     python -m bench.boards --quick    # fewer views
+    python -m bench.boards --circles  # only the circle grid table
+    python -m bench.boards --calibration  # only the calibration table
 
 Fresh renders (seeds the unit tests do not use) through the ``webcam`` preset (640 x 480,
 strong barrel distortion) and the ``hd`` preset, under two photometric conditions:
@@ -29,11 +31,15 @@ vignetting, a 4,000 e- well with 6 e- read noise).
    (DICT_APRILTAG_36h11, SUBPIX refinement) with its default ``markerBorderBits`` 1 and with
    2, Kalibr's printed border. OpenCV's corners are matched to the nearest true corner of
    the same tag (its corner order for this print is its own).
-5. Calibration from each target: 20 realistic whole-board views per camera of a marker grid
+5. Circle grids (:mod:`bench.circle_grids`): a 9 x 6 symmetric grid (40 mm spacing) and
+   OpenCV's 4 x 11 asymmetric grid (30 mm spacing), whole-board views: share found and
+   centre RMS for artcal_ros, the fitted ellipse's own centre (no perspective correction)
+   and OpenCV's ``findCirclesGrid`` blob centres; wrong ids and half-turned views.
+6. Calibration from each target: 20 realistic whole-board views per camera of a marker grid
    (9 x 6 markers of 30 mm, 10 mm gaps), the chessboard, a 10 x 7 ChArUco board (40 mm
-   squares, 30 mm markers) and a 9 x 6 AprilGrid (30 mm tags, spacing 0.33), boards of
-   about the same size, at poses drawn with the same seed; projection difference RMS
-   against the true camera (plumb_bob k1 k2 p1 p2).
+   squares, 30 mm markers), a 9 x 6 AprilGrid (30 mm tags, spacing 0.33) and the two
+   circle grids above, boards of about the same size, at poses drawn with the same seed;
+   projection difference RMS against the true camera (plumb_bob k1 k2 p1 p2).
 
 Full run: 20 views a case (about 25 minutes on a loaded 2-core machine); --quick: 6.
 """
@@ -51,6 +57,7 @@ from artcal_ros.core.calibrate.quality import projection_difference
 from artcal_ros.core.detect import Detector
 from artcal_ros.core.errors import CalibrationError
 from artcal_ros.synth import Camera, Photometry, random_poses, render_view
+from bench.circle_grids import ACIRCLES, CIRCLES, circle_grid
 
 CONDITIONS = {
     "clean": Photometry.clean(),
@@ -235,6 +242,8 @@ TARGETS = {
                      marker_length=0.03),
     "aprilgrid": Board(board_type="aprilgrid", cols=9, rows=6, marker_length=0.03,
                        marker_separation=0.01),
+    "circles": CIRCLES,
+    "acircles": ACIRCLES,
 }
 
 
@@ -259,7 +268,7 @@ def calibration(camera: str, views: int, seed: int) -> dict[str, str]:
 def _table(title: str, rows: dict[str, dict[str, str]]) -> None:
     keys = list(next(iter(rows.values())))
     print(f"\n{title}\n")
-    print("| case | " + " | ".join(keys) + " |")
+    print("| case | " + " | ".join(keys) + " |", flush=True)
     print("|---|" + "---|" * len(keys))
     for case, row in rows.items():
         print(f"| {case} | " + " | ".join(row[k] for k in keys) + " |")
@@ -268,23 +277,39 @@ def _table(title: str, rows: dict[str, dict[str, str]]) -> None:
 def main() -> None:
     parser = argparse.ArgumentParser(description=__doc__.split("\n")[0])
     parser.add_argument("--quick", action="store_true", help="fewer views")
+    parser.add_argument("--circles", action="store_true",
+                        help="only the circle grid table (with --calibration: and that one)")
+    parser.add_argument("--calibration", action="store_true",
+                        help="only the calibration table (with --circles: and that one)")
     args = parser.parse_args()
     views = 6 if args.quick else 20
-    chess_rows, charuco_rows, april_rows = {}, {}, {}
+    everything = not (args.circles or args.calibration)
+    chess_rows, charuco_rows, april_rows, circle_rows = {}, {}, {}, {}
     for camera in ("webcam", "hd"):
         for k, condition in enumerate(CONDITIONS):
-            chess_rows[f"{camera} {condition}"] = chessboard(camera, condition, views, 101 + k)
-            charuco_rows[f"{camera} {condition}"] = charuco(camera, condition, views, 201 + k)
-            april_rows[f"{camera} {condition}"] = aprilgrid(camera, condition, views, 501 + k)
-    _table("Chessboard 9x6, whole-board views: frames found, RMS error px", chess_rows)
-    _table("ChArUco 7x5, half the views partial", charuco_rows)
-    _table("AprilGrid 6x6, half the views partial: tags, corner RMS px", april_rows)
-    _table("Chessboard 9x6, squares of 4.5-6 px: frames found",
-           {"webcam clean": small_squares("webcam", views, 401)})
-    calib_rows = {camera: calibration(camera, 20, 301 + k)
-                  for k, camera in enumerate(("webcam", "hd"))}
-    _table("Calibration, 20 realistic views: projection difference RMS px", calib_rows)
-
+            case = f"{camera} {condition}"
+            if everything:
+                chess_rows[case] = chessboard(camera, condition, views, 101 + k)
+                charuco_rows[case] = charuco(camera, condition, views, 201 + k)
+                april_rows[case] = aprilgrid(camera, condition, views, 501 + k)
+            if everything or args.circles:
+                for board in (CIRCLES, ACIRCLES):
+                    circle_rows[f"{board.board_type} {case}"] = circle_grid(
+                        board, camera, CONDITIONS[condition], views, 601 + k)
+    if everything:
+        _table("Chessboard 9x6, whole-board views: frames found, RMS error px", chess_rows)
+        _table("ChArUco 7x5, half the views partial", charuco_rows)
+        _table("AprilGrid 6x6, half the views partial: tags, corner RMS px", april_rows)
+    if circle_rows:
+        _table("Circle grids (circles 9x6, acircles 4x11), whole-board views: frames found, "
+               "centre RMS px", circle_rows)
+    if everything:
+        _table("Chessboard 9x6, squares of 4.5-6 px: frames found",
+               {"webcam clean": small_squares("webcam", views, 401)})
+    if everything or args.calibration:
+        calib_rows = {camera: calibration(camera, 20, 301 + k)
+                      for k, camera in enumerate(("webcam", "hd"))}
+        _table("Calibration, 20 realistic views: projection difference RMS px", calib_rows)
 
 if __name__ == "__main__":
     main()

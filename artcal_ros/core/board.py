@@ -15,6 +15,9 @@
   origin at the squares' top-left outer corner, ``legacy_pattern`` as ``setLegacyPattern``.
 - ``aprilgrid`` is Kalibr's AprilGrid (:mod:`artcal_ros.core.boards.aprilgrid`) in the
   marker grid's frame: Kalibr's tag ids (tag 0 bottom-left) and point ids (the tag corners).
+- ``circles`` and ``acircles`` are OpenCV's symmetric and asymmetric circle grids
+  (:mod:`artcal_ros.core.boards.circles`): ``cols`` x ``rows`` is findCirclesGrid's
+  patternSize, ``square_length`` the circle spacing, point ids findCirclesGrid's order.
 
 A marker is ``bits + 2`` modules wide (a one-module border around the code).
 With polarity ``black`` a marker is a black border on white paper; ``white``
@@ -36,7 +39,8 @@ import numpy as np
 from artcal_ros.core.boards import BUILT_TYPES, PLANNED_TYPES, POINT_TYPES
 from artcal_ros.core.boards import aprilgrid as kalibr
 from artcal_ros.core.boards.chess import ChessLayout
-from artcal_ros.core.boards.text import cv_board, describe
+from artcal_ros.core.boards.circles import CircleLayout
+from artcal_ros.core.boards.text import cv_board, describe, print_lines, size_parameters
 from artcal_ros.core.errors import BoardError
 
 POLARITIES = ("black", "white", "mixed", "any")
@@ -100,7 +104,7 @@ class Board:
         if self.board_type != "marker_grid" and not self.square_length > 0:
             raise BoardError(f"parameter 'board.square_length': {self.square_length} "
                              "must be > 0 (metres)")
-        if self.board_type == "chessboard":
+        if self.board_type in ("chessboard", "circles", "acircles"):
             return
         if not self.marker_length > 0:
             raise BoardError(f"parameter 'board.marker_length': {self.marker_length} "
@@ -179,14 +183,7 @@ class Board:
     @property
     def size_parameters(self) -> str:
         """The parameters that set the board's geometry, for messages."""
-        if self.board_type == "chessboard":
-            return "board.cols, board.rows, board.square_length"
-        if self.board_type == "charuco":
-            return "board.cols, board.rows, board.square_length, board.marker_length"
-        if self.board_type == "aprilgrid":
-            return ("board.cols, board.rows, board.marker_length (tagSize), "
-                    "board.marker_separation (tagSize x tagSpacing)")
-        return "board.cols, board.rows, board.marker_length, board.marker_separation"
+        return size_parameters(self)
 
     # --- layout -------------------------------------------------------------------
     @cached_property
@@ -200,6 +197,14 @@ class Board:
                                white_top_left=self.legacy_pattern and self.rows % 2 == 0)
         return None
 
+    @cached_property
+    def circles(self) -> CircleLayout | None:
+        """The circles of a ``circles`` or ``acircles`` board (None on other boards)."""
+        if self.board_type not in ("circles", "acircles"):
+            return None
+        return CircleLayout(self.cols, self.rows, self.square_length,
+                            self.board_type == "acircles")
+
     @property
     def has_points(self) -> bool:
         """Whether the board's correspondences are its points (saddle points), not markers."""
@@ -207,7 +212,9 @@ class Board:
 
     @property
     def n_markers(self) -> int:
-        """Number of markers on the board (0 for a chessboard)."""
+        """Number of markers on the board (0 for a chessboard or a circle grid)."""
+        if self.circles is not None:
+            return 0
         if self.chess is not None:
             return 0 if self.board_type == "chessboard" else len(self.chess.white_squares)
         return self.cols * self.rows
@@ -217,6 +224,8 @@ class Board:
         """(M,) int64: every point id (inner corners; empty for a marker grid)."""
         if self.board_type == "aprilgrid":
             return np.arange(4 * self.n_markers, dtype=np.int64)
+        if self.circles is not None:
+            return np.arange(self.circles.n_circles, dtype=np.int64)
         return np.arange(0 if self.chess is None else self.chess.n_corners, dtype=np.int64)
 
     def _check_point_ids(self, ids: np.ndarray) -> np.ndarray:
@@ -233,6 +242,8 @@ class Board:
         if self.board_type == "aprilgrid":
             return kalibr.kalibr_points(ids, self.cols, self.rows, self.marker_length,
                                         self.marker_separation)
+        if self.circles is not None:
+            return self.circles.centres(ids)
         if self.chess is None:
             return np.zeros((0, 3))
         return self.chess.corner_points(ids)
@@ -250,6 +261,8 @@ class Board:
         ids = self._check_point_ids(point_ids)
         if self.board_type == "aprilgrid":
             return kalibr.point_cells(ids, self.cols, self.rows)
+        if self.circles is not None:
+            return self.circles.cells(ids)
         if self.chess is None:
             return np.zeros((0, 2), np.int64)
         return self.chess.corner_cells(ids)
@@ -291,6 +304,8 @@ class Board:
     @property
     def extent_m(self) -> tuple[float, float, float, float]:
         """(x0, y0, x1, y1) of the printed pattern (without margin), board frame, metres."""
+        if self.circles is not None:
+            return self.circles.extent_m
         if self.chess is not None:
             return self.chess.extent_m
         w = self.cols * self.pitch - self.marker_separation
@@ -309,7 +324,7 @@ class Board:
     @property
     def margin_m(self) -> float:
         """Quiet margin printed around the pattern, metres."""
-        if self.board_type == "chessboard":
+        if self.board_type in ("chessboard", "circles", "acircles"):
             return self.square_length
         if self.board_type == "charuco":
             return 0.5 * self.square_length
@@ -317,7 +332,9 @@ class Board:
 
     @property
     def finest_m(self) -> float:
-        """The smallest feature of the print (a module, or a square), metres."""
+        """The smallest feature of the print (a module, a square, a circle), metres."""
+        if self.circles is not None:
+            return 2.0 * self.circles.radius
         return self.square_length if self.board_type == "chessboard" else self.module_length
 
     @cached_property
@@ -430,6 +447,8 @@ class Board:
         """
         x = np.asarray(x_m, dtype=np.float64)
         y = np.asarray(y_m, dtype=np.float64)
+        if self.circles is not None:
+            return self.circles.is_white(x, y)
         if self.chess is not None:
             out = self.chess.squares_white(x, y)
             if not self.n_markers:
@@ -463,27 +482,9 @@ class Board:
         return out
 
     def print_lines(self) -> tuple[np.ndarray, np.ndarray]:
-        """Sorted board x and y positions (metres) of every line the print may change colour
-        on: module and marker edges, tile edges (midway across a gap), square edges."""
-        lines: list[np.ndarray] = []
-        n = self.bits + 2
-        chess = self.chess.lines_m() if self.chess is not None else None
-        for axis, count in enumerate((self.cols, self.rows)):
-            parts: list[np.ndarray] = []
-            starts: np.ndarray
-            if chess is not None:
-                parts.append(chess[axis])
-                starts = chess[axis][:-1] + self.quiet_zone_m
-            else:
-                starts = np.arange(count) * self.pitch
-                parts.append(starts[1:] - 0.5 * self.marker_separation)
-                if self.board_type == "aprilgrid":  # the outer corner squares' edges
-                    s = self.marker_separation
-                    parts.append(np.array([-s, count * self.pitch]))
-            if self.n_markers:
-                parts.append((starts[:, None] + np.arange(n + 1) * self.module_length).ravel())
-            lines.append(np.unique(np.round(np.concatenate(parts), 12)))
-        return lines[0], lines[1]
+        """Sorted board x and y positions (metres) of every straight line the print may
+        change colour on (:func:`artcal_ros.core.boards.text.print_lines`)."""
+        return print_lines(self)
 
     def to_cv_board(self) -> cv2.aruco.Board:
         """The equivalent OpenCV board (:func:`artcal_ros.core.boards.text.cv_board`)."""

@@ -9,7 +9,7 @@ Kalibr describes its calibration targets in a small YAML file (``kalibr_calibrat
   camera_calibration's ``--size``), rowSpacingMeters = colSpacingMeters -> board.square_length
   (this package's chessboard has square squares; different spacings are refused).
 
-Kalibr's ``circlegrid`` is refused until circle grids are built.
+Kalibr's ``circlegrid`` is refused (its layout is not mapped to OpenCV's circle grids).
 """
 
 from __future__ import annotations
@@ -80,8 +80,10 @@ def target_params(path: str | Path) -> dict[str, Any]:
     data = _read(p)
     kind = data.get("target_type")
     if kind == "circlegrid":
-        raise ParameterError(f"--target {p}: target_type circlegrid is not built yet; "
-                             "aprilgrid and checkerboard are")
+        raise ParameterError(f"--target {p}: target_type circlegrid is not read (Kalibr's "
+                             "circle grid layout is not mapped); describe the print with "
+                             "board.type circles or acircles, board.cols, board.rows and "
+                             "board.square_length (OpenCV's circle grids) instead")
     if kind not in _FIELDS:
         raise ParameterError(f"--target {p}: target_type {kind!r} is not a Kalibr target "
                              "type this reads; use aprilgrid or checkerboard")

@@ -76,18 +76,21 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("board.type", "marker_grid",
               "Board layout: marker_grid (self-identifying markers), chessboard "
               "(camera_calibration's), charuco (OpenCV's CharucoBoard), aprilgrid (Kalibr's "
-              "AprilGrid).",
+              "AprilGrid), circles and acircles (OpenCV's symmetric and asymmetric circle "
+              "grids).",
               check=_board_type, allowed=", ".join(BUILT_TYPES)),
     ParamSpec("board.dictionary", "DICT_6X6_1000",
               "OpenCV predefined ArUco dictionary name of the markers (aprilgrid: tag36h11, "
               "the only one it prints).", check=_dictionary),
     ParamSpec("board.cols", 19, "Per row: markers (marker_grid), tags (aprilgrid: Kalibr's "
               "tagCols), inner corners (chessboard, "
-              "camera_calibration's --size COLSxROWS), squares (charuco, OpenCV's squaresX).",
+              "camera_calibration's --size COLSxROWS), squares (charuco, OpenCV's squaresX), "
+              "circles (circles, acircles: findCirclesGrid's patternSize width).",
               check=_positive),
     ParamSpec("board.rows", 9, "Per column: markers (marker_grid), tags (aprilgrid: "
               "tagRows), inner corners "
-              "(chessboard), squares (charuco, OpenCV's squaresY).", check=_positive),
+              "(chessboard), squares (charuco, OpenCV's squaresY), circle rows (circles, "
+              "acircles).", check=_positive),
     ParamSpec("board.marker_length", 0.06,
               "Side of a marker's outer black square, metres (aprilgrid: Kalibr's tagSize).",
               check=_positive),
@@ -95,7 +98,9 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "Gap between neighbouring markers, metres (aprilgrid: tagSize x tagSpacing).",
               check=_positive),
     ParamSpec("board.square_length", 0.08,
-              "Side of a chessboard or charuco square, metres.", check=_positive),
+              "Side of a chessboard or charuco square; circles, acircles: the circle spacing "
+              "(findCirclesGrid's squareSize; circles of 0.4 x spacing diameter), metres.",
+              check=_positive),
     ParamSpec("board.legacy_pattern", False,
               "charuco: OpenCV's legacy layout (before 4.6: a white top-left square on boards "
               "with an even number of rows; CharucoBoard.setLegacyPattern)."),
@@ -170,7 +175,8 @@ def _board_fits(values: Mapping[str, ParamValue]) -> str | None:
                                    int(values["board.first_id"]))
     for name in ("board.cols", "board.rows"):
         if int(values[name]) < 2:
-            what = "inner corners" if kind == "chessboard" else "squares"
+            what = {"chessboard": "inner corners", "charuco": "squares"}.get(str(kind),
+                                                                             "circles")
             return (f"parameter '{name}': {values[name]} is too few for a {kind}; "
                     f"use at least 2 ({what})")
     if kind == "charuco":

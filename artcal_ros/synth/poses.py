@@ -71,18 +71,15 @@ def point_truth(board: Board, cam: Camera, rvec: np.ndarray,
         inside = ((px[:, 0] >= 0) & (px[:, 0] <= w - 1) & (px[:, 1] >= 0) & (px[:, 1] <= h - 1)
                   & (field_radius(cam, cam_pts) <= cam.max_field_radius()))
     rc = board.point_cells(board.point_ids)
-    grid = np.full((rc[:, 0].max() + 1, rc[:, 1].max() + 1, 2), np.nan)
-    grid[rc[:, 0], rc[:, 1]] = px
-    gaps = []
-    for axis in (0, 1):
-        d = np.linalg.norm(np.diff(grid, axis=axis), axis=2)
-        pad = [(0, 0), (0, 0)]
-        pad[axis] = (1, 0)
-        before = np.pad(d, pad, constant_values=np.nan)
-        pad[axis] = (0, 1)
-        after = np.pad(d, pad, constant_values=np.nan)
-        gaps += [before, after]
-    spacing = np.nanmin(np.stack(gaps), axis=0)[rc[:, 0], rc[:, 1]]
+    grid = np.full((rc[:, 0].max() + 3, rc[:, 1].max() + 3, 2), np.nan)
+    grid[rc[:, 0] + 1, rc[:, 1] + 1] = px
+    # grid neighbours: along rows and columns (an asymmetric circle grid's cells are a
+    # chequer: its neighbours are diagonal)
+    steps = ((1, 1), (1, -1)) if board.board_type == "acircles" else ((0, 1), (1, 0))
+    r, c = rc[:, 0] + 1, rc[:, 1] + 1
+    gaps = [np.linalg.norm(grid[r + sr * dr, c + sr * dc] - px, axis=1)
+            for dr, dc in steps for sr in (-1, 1)]
+    spacing = np.nanmin(np.stack(gaps), axis=0)
     return px, np.asarray(inside), np.asarray(spacing)
 
 

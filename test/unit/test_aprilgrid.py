@@ -217,7 +217,7 @@ def test_kalibr_targets_translate_into_board_parameters(tmp_path: Path) -> None:
      "tagSize: -1 must be > 0"),
     ("target_type: checkerboard\ntargetCols: 6\ntargetRows: 7\nrowSpacingMeters: 0.06\n"
      "colSpacingMeters: 0.05\n", "differ"),
-    ("target_type: circlegrid\ntargetCols: 6\n", "not built yet"),
+    ("target_type: circlegrid\ntargetCols: 6\n", "board.type circles or acircles"),
     ("target_type: [\n", "not valid YAML"),
     ("- 1\n- 2\n", "expected a mapping"),
     ("target_type: apriltag\n", "not a Kalibr target type"),

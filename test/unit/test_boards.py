@@ -12,7 +12,7 @@ import pytest
 from artcal_ros import Board
 from artcal_ros.core.detect import Detector
 from artcal_ros.core.detect.chessboard import squares_alternate
-from artcal_ros.core.errors import BoardError, ParameterError
+from artcal_ros.core.errors import ParameterError
 from artcal_ros.core.params import validate
 from artcal_ros.synth.camera import Camera
 from artcal_ros.synth.photometry import Photometry
@@ -69,13 +69,15 @@ def test_chessboard_points_follow_camera_calibration() -> None:
 
 
 # --- parameters -------------------------------------------------------------------------
-@pytest.mark.parametrize("kind", ["circles", "acircles"])
-def test_types_not_built_are_refused_naming_the_built_ones(kind: str) -> None:
-    with pytest.raises(ParameterError,
-                       match=r"not built yet.*marker_grid, chessboard, charuco, aprilgrid"):
-        validate({"board.type": kind})
-    with pytest.raises(BoardError, match="not built yet"):
-        Board(board_type=kind)
+@pytest.mark.parametrize("kind", ["marker_grid", "chessboard", "charuco", "aprilgrid",
+                                  "circles", "acircles"])
+def test_every_board_type_of_the_design_is_built(kind: str) -> None:
+    values = {"board.type": kind, "board.cols": 6, "board.rows": 5}
+    if kind == "aprilgrid":
+        values.update({"board.dictionary": "tag36h11", "board.marker_separation": 0.018})
+    validate(values)
+    assert Board.from_params({**values, "board.marker_length": 0.06 if kind != "charuco"
+                              else 0.05}).board_type == kind
 
 
 @pytest.mark.parametrize(("values", "message"), [

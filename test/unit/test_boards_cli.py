@@ -108,8 +108,10 @@ def test_size_contradicting_board_type_is_refused(capsys: pytest.CaptureFixture[
     Board(board_type="chessboard", cols=9, rows=6, square_length=0.04),
     Board(board_type="charuco", cols=7, rows=5, square_length=0.05, marker_length=0.037),
     Board(board_type="aprilgrid", cols=6, rows=6, marker_length=0.088,
-          marker_separation=0.0264)],
-    ids=["chessboard", "charuco", "aprilgrid"])
+          marker_separation=0.0264),
+    Board(board_type="circles", cols=7, rows=5, square_length=0.04),
+    Board(board_type="acircles", cols=4, rows=11, square_length=0.03)],
+    ids=["chessboard", "charuco", "aprilgrid", "circles", "acircles"])
 def test_live_collection_keeps_views_of_point_boards(tmp_path: Path, board: Board) -> None:
     cam = Camera.preset("webcam")
     truth_path = write_dataset(board, cam, tmp_path / "d", frames=4, seed=9,
@@ -129,6 +131,27 @@ def test_live_collection_keeps_views_of_point_boards(tmp_path: Path, board: Boar
         live.stop(5.0)
     views = collector.views
     assert len(views) >= 2
-    # points on chessboard and ChArUco, markers (tags) on an aprilgrid
+    # points on chessboard, ChArUco and circle grids, markers (tags) on an aprilgrid
     assert all(v.n_features >= 8 for v in views)
     assert all(len(v.point_ids) >= 8 for v in views) == board.has_points
+
+
+@pytest.mark.parametrize("kind", ["circles", "acircles"])
+def test_circle_grids_calibrate_through_the_cli(tmp_path: Path, kind: str) -> None:
+    board = (Board(board_type="circles", cols=7, rows=5, square_length=0.04) if kind == "circles"
+             else Board(board_type="acircles", cols=4, rows=11, square_length=0.03))
+    cam = Camera.preset("webcam")
+    truth = load_truth(write_dataset(board, cam, tmp_path / "data", frames=10, seed=5,
+                                     partial_fraction=0.0))
+    out, report = tmp_path / "cam.yaml", tmp_path / "report"
+    pngs = sorted(str(p) for p in (tmp_path / "data").glob("*.png"))
+    sets = [x for k, v in board.to_params().items() for x in ("--set", f"{k}={v}")]
+    code = main(["calibrate", *pngs, *sets, "--output", str(out), "--report", str(report),
+                 "--quiet"])
+    assert code == 0
+    K = np.array(yaml.safe_load(out.read_text())["camera_matrix"]["data"]).reshape(3, 3)
+    K_true = np.array(truth.camera.to_dict()["K"])
+    assert abs(K[0, 0] / K_true[0, 0] - 1) < 0.005
+    assert abs(K[0, 2] - K_true[0, 2]) < 1.5
+    summary = json.loads((report / "summary.json").read_text())
+    assert summary["reprojection_rms_px"] < 0.1

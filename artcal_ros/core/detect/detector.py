@@ -1,6 +1,7 @@
 """The detection pipeline: candidate quads, board-aware decoding, sub-pixel corners and centers.
 
-A chessboard goes to :mod:`artcal_ros.core.detect.chessboard` instead (no markers); a
+A chessboard goes to :mod:`artcal_ros.core.detect.chessboard` instead (no markers), a
+circle grid to :mod:`artcal_ros.core.detect.circles`; a
 ChArUco board runs the marker pipeline below with its markers, then
 :mod:`artcal_ros.core.detect.charuco` measures its corners from them.
 
@@ -49,6 +50,7 @@ from artcal_ros.core.detect.candidates import CandidateFinder
 from artcal_ros.core.detect.centers import diagonal_centers
 from artcal_ros.core.detect.charuco import charuco_corners
 from artcal_ros.core.detect.chessboard import detect_chessboard
+from artcal_ros.core.detect.circles import detect_circles
 from artcal_ros.core.detect.edge_shift import (
     MarkerGrowth,
     compensate,
@@ -323,8 +325,12 @@ class Detector:
         lin = curve.linearise(gray)
         # a chessboard has no marker borders to estimate the tone curve from: the
         # configured curve or the pool's (gamma 2.2 until markers say otherwise)
-        if self._candidates is None:     # a chessboard: points only
-            pids, pts, psig = detect_chessboard(gray8, lin, self.board)
+        if self._candidates is None:     # a chessboard or a circle grid: points only
+            if self.board.circles is not None:
+                pids, pts, psig = detect_circles(
+                    gray8, lin, self.board, known_lens(camera) if camera is not None else None)
+            else:
+                pids, pts, psig = detect_chessboard(gray8, lin, self.board)
             return replace(Detections.empty((w, h), source), sharpness=sharpness,
                            point_ids=pids, points_px=pts, point_sigma_px=psig)
         bits = self.board.bits
