@@ -1,4 +1,5 @@
-"""Kalibr target YAML files (``target_type: aprilgrid | checkerboard``) as ``board.*`` parameters.
+"""Kalibr target YAML files (``target_type: aprilgrid | checkerboard | circlegrid``) as ``board.*``
+parameters.
 
 Kalibr describes its calibration targets in a small YAML file (``kalibr_calibrate_cameras
 --target april_6x6.yaml``). The translation (also in docs/conventions.md):
@@ -9,7 +10,12 @@ Kalibr describes its calibration targets in a small YAML file (``kalibr_calibrat
   camera_calibration's ``--size``), rowSpacingMeters = colSpacingMeters -> board.square_length
   (this package's chessboard has square squares; different spacings are refused).
 
-Kalibr's ``circlegrid`` is refused (its layout is not mapped to OpenCV's circle grids).
+- ``circlegrid``: targetCols -> board.cols, targetRows -> board.rows (Kalibr passes them to
+  OpenCV's ``findCirclesGrid`` as its patternSize, so the point order and ids are OpenCV's),
+  spacingMeters -> board.square_length, asymmetricGrid (default false) -> board.type
+  ``acircles`` when true, else ``circles``. Kalibr's asymmetric layout is OpenCV's; its
+  symmetric grid has x and y swapped (point ``r * cols + c`` at ``(r s, c s)``), a mirrored
+  board frame that leaves the intrinsics as they are (docs/conventions.md).
 """
 
 from __future__ import annotations
@@ -25,6 +31,7 @@ from artcal_ros.core.errors import ParameterError
 _FIELDS: dict[str, tuple[str, ...]] = {
     "aprilgrid": ("tagCols", "tagRows", "tagSize", "tagSpacing"),
     "checkerboard": ("targetCols", "targetRows", "rowSpacingMeters", "colSpacingMeters"),
+    "circlegrid": ("targetCols", "targetRows", "spacingMeters"),
 }
 _COUNTS = ("tagCols", "tagRows", "targetCols", "targetRows")
 
@@ -43,7 +50,7 @@ def _read(path: Path) -> dict[str, Any]:
                              "file with target_type and its fields") from None
     if not isinstance(data, dict):
         raise ParameterError(f"--target {path}: expected a mapping with target_type "
-                             "(aprilgrid or checkerboard) and its fields")
+                             "(aprilgrid, checkerboard or circlegrid) and its fields")
     return data
 
 
@@ -79,14 +86,9 @@ def target_params(path: str | Path) -> dict[str, Any]:
     p = Path(path)
     data = _read(p)
     kind = data.get("target_type")
-    if kind == "circlegrid":
-        raise ParameterError(f"--target {p}: target_type circlegrid is not read (Kalibr's "
-                             "circle grid layout is not mapped); describe the print with "
-                             "board.type circles or acircles, board.cols, board.rows and "
-                             "board.square_length (OpenCV's circle grids) instead")
     if kind not in _FIELDS:
         raise ParameterError(f"--target {p}: target_type {kind!r} is not a Kalibr target "
-                             "type this reads; use aprilgrid or checkerboard")
+                             "type this reads; use aprilgrid, checkerboard or circlegrid")
     f = {name: _field(p, data, name) for name in _FIELDS[str(kind)]}
     if kind == "aprilgrid":
         return {"board.type": "aprilgrid", "board.dictionary": "tag36h11",
@@ -95,6 +97,8 @@ def target_params(path: str | Path) -> dict[str, Any]:
                 # rounded to the nanometre: 0.088 x 0.3 reads 0.0264, not 0.026399999999999996
                 "board.marker_separation": round(f["tagSize"] * f["tagSpacing"], 9),
                 "board.polarity": "black", "board.first_id": 0}
+    if kind == "circlegrid":
+        return _circlegrid(p, data, f)
     if int(f["targetCols"]) < 2 or int(f["targetRows"]) < 2:
         raise ParameterError(f"--target {p}: a checkerboard needs at least 2 x 2 inner "
                              "corners (targetCols, targetRows)")
@@ -104,3 +108,19 @@ def target_params(path: str | Path) -> dict[str, Any]:
                              f"{col} differ; a chessboard here has square squares")
     return {"board.type": "chessboard", "board.cols": int(f["targetCols"]),
             "board.rows": int(f["targetRows"]), "board.square_length": row}
+
+
+def _circlegrid(path: Path, data: dict[str, Any], f: dict[str, float]) -> dict[str, Any]:
+    """The ``board.*`` parameters of a Kalibr circlegrid (see the module docstring)."""
+    asymmetric = data.get("asymmetricGrid", False)
+    if isinstance(asymmetric, int) and not isinstance(asymmetric, bool) and asymmetric in (0, 1):
+        asymmetric = bool(asymmetric)
+    if not isinstance(asymmetric, bool):
+        raise ParameterError(f"--target {path}: asymmetricGrid: {asymmetric!r} is not true or "
+                             "false")
+    if int(f["targetCols"]) < 2 or int(f["targetRows"]) < 2:
+        raise ParameterError(f"--target {path}: a circle grid needs at least 2 x 2 circles "
+                             "(targetCols, targetRows)")
+    return {"board.type": "acircles" if asymmetric else "circles",
+            "board.cols": int(f["targetCols"]), "board.rows": int(f["targetRows"]),
+            "board.square_length": f["spacingMeters"]}

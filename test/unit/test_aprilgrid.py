@@ -207,6 +207,19 @@ def test_kalibr_targets_translate_into_board_parameters(tmp_path: Path) -> None:
                  "rowSpacingMeters: 0.108\ncolSpacingMeters: 0.108\n")
     assert target_params(f) == {"board.type": "chessboard", "board.cols": 8, "board.rows": 6,
                                 "board.square_length": 0.108}
+    # Kalibr's circlegrid: asymmetricGrid false (or absent) is OpenCV's symmetric grid
+    f.write_text("target_type: 'circlegrid'\ntargetCols: 6\ntargetRows: 7\n"
+                 "spacingMeters: 0.02\nasymmetricGrid: False\n")
+    assert Board.from_params(target_params(f)) == Board(board_type="circles", cols=6, rows=7,
+                                                        square_length=0.02)
+    f.write_text("target_type: 'circlegrid'\ntargetCols: 4\ntargetRows: 11\n"
+                 "spacingMeters: 0.02\nasymmetricGrid: True\n")
+    acircles = Board.from_params(target_params(f))
+    assert acircles == Board(board_type="acircles", cols=4, rows=11, square_length=0.02)
+    # Kalibr's asymmetric layout: point r * cols + c at ((2 c + r % 2) s, r s)
+    r, c = np.divmod(np.arange(44), 4)
+    np.testing.assert_allclose(acircles.object_points()[:, :2],
+                               np.stack([(2 * c + r % 2) * 0.02, r * 0.02], axis=1), atol=1e-12)
 
 
 @pytest.mark.parametrize(("text", "message"), [
@@ -217,7 +230,9 @@ def test_kalibr_targets_translate_into_board_parameters(tmp_path: Path) -> None:
      "tagSize: -1 must be > 0"),
     ("target_type: checkerboard\ntargetCols: 6\ntargetRows: 7\nrowSpacingMeters: 0.06\n"
      "colSpacingMeters: 0.05\n", "differ"),
-    ("target_type: circlegrid\ntargetCols: 6\n", "board.type circles or acircles"),
+    ("target_type: circlegrid\ntargetCols: 6\n", "needs targetRows"),
+    ("target_type: circlegrid\ntargetCols: 6\ntargetRows: 7\nspacingMeters: 0.02\n"
+     "asymmetricGrid: maybe\n", "asymmetricGrid: 'maybe' is not true or false"),
     ("target_type: [\n", "not valid YAML"),
     ("- 1\n- 2\n", "expected a mapping"),
     ("target_type: apriltag\n", "not a Kalibr target type"),

@@ -86,3 +86,22 @@ def test_bad_board_options_are_one_line_naming_the_fault(tmp_path: Path, verb: s
     target.write_text(KALIBR_APRILGRID)
     assert main([verb, *rest, "--target", str(target), "--size", "9x6"]) == 2
     assert "give one" in capsys.readouterr().err
+
+
+def test_detect_with_a_kalibr_circlegrid_finds_the_true_centres(tmp_path: Path) -> None:
+    board = Board(board_type="acircles", cols=4, rows=11, square_length=0.02)
+    data = tmp_path / "data"
+    truth = load_truth(write_dataset(board, Camera.preset("webcam"), data, frames=2, seed=23,
+                                     partial_fraction=0.0))
+    target = tmp_path / "circles.yaml"
+    target.write_text("target_type: 'circlegrid'\ntargetCols: 4\ntargetRows: 11\n"
+                      "spacingMeters: 0.02\nasymmetricGrid: True\n")
+    out = tmp_path / "det.json"
+    pngs = sorted(str(p) for p in data.glob("*.png"))
+    assert main(["detect", *pngs, "--target", str(target), "--json", str(out), "--quiet"]) == 0
+    images = json.loads(out.read_text())["images"]
+    for record, frame in zip(images, truth.frames, strict=True):
+        true = dict(zip(frame.point_ids.tolist(), frame.points_px.tolist(), strict=True))
+        assert len(record["points"]) == 44
+        err = [np.hypot(*(np.array(p["xy"]) - true[p["id"]])) for p in record["points"]]
+        assert max(err) < 0.15
