@@ -45,8 +45,9 @@ def add_board_arguments(parser: argparse.ArgumentParser) -> None:
                         help="with --size: the chessboard's square side in metres, as "
                              "camera_calibration's --square 0.108 (board.square_length)")
     parser.add_argument("--target", metavar="target.yaml", default=None,
-                        help="a Kalibr target YAML (target_type aprilgrid or checkerboard), "
-                             "translated into the board.* parameters (docs/conventions.md)")
+                        help="a Kalibr target YAML (target_type aprilgrid, checkerboard or "
+                             "circlegrid), translated into the board.* parameters "
+                             "(docs/conventions.md)")
 
 
 def chessboard_overrides(size: str | None, square: float | None) -> dict[str, Any]:
