@@ -50,10 +50,9 @@ from artcal_ros.core.detect.centers import diagonal_centers
 from artcal_ros.core.detect.charuco import charuco_corners
 from artcal_ros.core.detect.chessboard import detect_chessboard
 from artcal_ros.core.detect.edge_shift import (
-    MarkerGrowth,
     compensate,
-    marker_growth,
-    view_shift_px,
+    neighbourhood_shift_px,
+    robust_shift_px,
 )
 from artcal_ros.core.detect.edges import EdgeFit, ProbeFit, refine_quads, same_edges
 from artcal_ros.core.detect.image import to_gray, to_gray8
@@ -141,6 +140,10 @@ class DetectorConfig:
             raise DetectionError("DetectorConfig.adaptive_window_max must be >= 3")
 
 
+# a view's edge shift is removed only beyond this plus 3 sigma, px: against truth, the
+# shift read from the centres errs by up to 0.011 px in close views of few, large markers
+# (the centres' own errors), where no shift is there to remove
+_MIN_SHIFT_PX = 0.015
 # most pilot sides a frame's tone probe re-fits per candidate curve
 _PROBE_SIDES = 16
 
@@ -273,7 +276,8 @@ class Detector:
         if lens is not None and m:
             q = lens.undistort(corners.reshape(-1, 2)).reshape(m, 4, 2)
             c = lens.undistort(centers)
-        growth = marker_growth(ids, q, c, self.board)
+        # each marker's shift against the centres around it (they do not move with it)
+        marker_shift = neighbourhood_shift_px(ids, q, c, self.board)
         # light spreading into dark grows a white-bordered marker and shrinks a black one:
         # on a mixed board each polarity has its own shift (reported: the black ones')
         inverted = np.array([self.board.is_inverted(int(i)) for i in ids], bool)
@@ -282,13 +286,13 @@ class Detector:
         for group in (~inverted, inverted):
             if not group.any():
                 continue
-            part = MarkerGrowth(growth.growth[group], growth.px_per_m[group],
-                                growth.homography[group])
-            d, d_sd = view_shift_px(part, self.board)
+            d, d_sd = robust_shift_px(marker_shift[group])
             if not np.isfinite(d_sd):
                 continue
-            # the quads shrink about their centres: the diagonals' crossing stays
-            q[group] = compensate(q[group], part, d, self.board)
+            if abs(d) <= _MIN_SHIFT_PX + 3.0 * d_sd:
+                d = 0.0     # not told apart from no shift: removing it would add error
+            # every side moves back along its normal (the centres were measured already)
+            q[group] = compensate(q[group], d)
             if not np.isfinite(shift):
                 shift = d
         if not np.isfinite(shift):
