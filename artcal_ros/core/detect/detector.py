@@ -140,10 +140,12 @@ class DetectorConfig:
             raise DetectionError("DetectorConfig.adaptive_window_max must be >= 3")
 
 
-# a view's edge shift is removed only beyond this plus 3 sigma, px: against truth, the
-# shift read from the centres errs by up to 0.011 px in close views of few, large markers
-# (the centres' own errors), where no shift is there to remove
-_MIN_SHIFT_PX = 0.015
+# a view's edge shift is removed only beyond this over the markers read plus 2 sigma, px:
+# against truth the shift read from the centres errs by up to 0.011 px in close views of
+# 13 - 25 large markers (more than its sigma says; the centres' own errors) and by about
+# 0.001 px in views of 170, where a clean frame's true shift of 0.003 - 0.01 px is worth
+# removing
+_SHIFT_ERROR_PX = 0.3
 # most pilot sides a frame's tone probe re-fits per candidate curve
 _PROBE_SIDES = 16
 
@@ -289,7 +291,8 @@ class Detector:
             d, d_sd = robust_shift_px(marker_shift[group])
             if not np.isfinite(d_sd):
                 continue
-            if abs(d) <= _MIN_SHIFT_PX + 3.0 * d_sd:
+            n_read = int(np.isfinite(marker_shift[group]).sum())
+            if abs(d) <= _SHIFT_ERROR_PX / n_read + 2.0 * d_sd:
                 d = 0.0     # not told apart from no shift: removing it would add error
             # every side moves back along its normal (the centres were measured already)
             q[group] = compensate(q[group], d)
