@@ -188,12 +188,17 @@ def board_checks(views: int, seed: int) -> list[dict[str, Any]]:
         for light in ("clean", "realistic"):
             rng = np.random.default_rng(seed + k)
             detector = Detector(BOARD)
-            dets = []
+            dets, tvecs = [], []
             for r, t in random_poses(printed, cam, views, rng):
                 phot = Photometry.clean() if light == "clean" else realistic(rng)
                 dets.append(detector.detect(render_view(printed, cam, r, t, photometry=phot,
                                                         rng=rng).image))
+                tvecs.append(t)
             result = calibrate(dets, BOARD, image_size=cam.size)
+            # a scaled page is the true page seen from further away: the distances scale
+            distance = float(np.median([np.linalg.norm(result.tvecs[i])
+                                        / np.linalg.norm(tvecs[v])
+                                        for i, v in enumerate(result.views_used)]))
             check = check_board([dets[i] for i in result.views_used], BOARD, result.camera)
             true_ratio = printed.marker_length / (printed.marker_length
                                                   + printed.marker_separation)
@@ -204,13 +209,15 @@ def board_checks(views: int, seed: int) -> list[dict[str, Any]]:
                    "separation_error": check.marker_separation / printed.marker_separation - 1,
                    "ratio_error": seen_ratio / true_ratio - 1, "ratio_sigma": check.sigma,
                    "warning": check.warning,
-                   "proj_rms": projection_difference(cam, result)[0]}
+                   "proj_rms": projection_difference(cam, result)[0],
+                   "distance_ratio": distance}
             rows.append(row)
             print(f"{name:16s} {light:9s} separation {check.marker_separation:.6f} m "
                   f"(printed {printed.marker_separation:.6f}, {100 * row['separation_error']:+.2f}"
                   f" %); L/pitch {100 * row['ratio_error']:+.3f} % (1 sigma "
                   f"{100 * check.sigma:.3f} %); warning: {'yes' if check.warning else 'none'}; "
-                  f"calibration {row['proj_rms']:.4f} px", flush=True)
+                  f"calibration {row['proj_rms']:.4f} px, distances x {distance:.4f}",
+                  flush=True)
     return rows
 
 

@@ -283,8 +283,8 @@ class Detector:
         # light spreading into dark grows a white-bordered marker and shrinks a black one:
         # on a mixed board each polarity has its own shift (reported: the black ones')
         inverted = np.array([self.board.is_inverted(int(i)) for i in ids], bool)
-        shift = float("nan")
-        q = q.copy()
+        shift, largest = float("nan"), 0.0
+        q_u, q = q, q.copy()
         for group in (~inverted, inverted):
             if not group.any():
                 continue
@@ -296,12 +296,19 @@ class Detector:
                 d = 0.0     # not told apart from no shift: removing it would add error
             # every side moves back along its normal (the centres were measured already)
             q[group] = compensate(q[group], d)
+            largest = max(largest, abs(d))
             if not np.isfinite(shift):
                 shift = d
         if not np.isfinite(shift):
             return corners, float("nan")
         if lens is not None:
-            q = lens.distort(q.reshape(-1, 2)).reshape(m, 4, 2)
+            # the move, mapped back (the round trip of a point far out in a strong lens
+            # need not return it exactly: only the difference is taken)
+            moved = lens.distort(q.reshape(-1, 2)) - lens.distort(q_u.reshape(-1, 2))
+            q = corners + moved.reshape(m, 4, 2)
+            # a move the lens magnified beyond any shift's size is not one (a fold)
+            wild = ~(np.linalg.norm(q - corners, axis=-1) <= 4.0 * largest + 0.05).all(axis=1)
+            q[wild] = corners[wild]
         return q, shift
 
     def detect(self, image: np.ndarray, camera: CameraModel | HasCamera | None = None, *,

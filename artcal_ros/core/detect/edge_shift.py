@@ -197,7 +197,9 @@ def compensate(corners_px: np.ndarray, shift_px: float) -> np.ndarray:
 
     Every side's line moves by ``shift_px`` along its own normal, inward for a positive
     shift, and adjacent lines are intersected again: exactly the shift
-    :func:`neighbourhood_shift_px` measures, on every side of a tilted marker alike.
+    :func:`neighbourhood_shift_px` measures, on every side of a tilted marker alike. A
+    quad with a corner that would move by more than 4 shifts (sharper than about 30
+    degrees: degenerate) is left as it is.
     """
     q = np.asarray(corners_px, dtype=np.float64)
     if len(q) == 0 or shift_px == 0.0:
@@ -213,6 +215,13 @@ def compensate(corners_px: np.ndarray, shift_px: float) -> np.ndarray:
     prev_n, prev_c = np.roll(normal, 1, axis=1), np.roll(level, 1, axis=1)
     # corner i is where side i-1 and side i meet
     det = prev_n[..., 0] * normal[..., 1] - prev_n[..., 1] * normal[..., 0]
-    x = (prev_c * normal[..., 1] - level * prev_n[..., 1]) / det
-    y = (prev_n[..., 0] * level - normal[..., 0] * prev_c) / det
-    return np.stack([x, y], axis=-1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x = (prev_c * normal[..., 1] - level * prev_n[..., 1]) / det
+        y = (prev_n[..., 0] * level - normal[..., 0] * prev_c) / det
+    out = np.stack([x, y], axis=-1)
+    # a corner sharper than about 30 degrees would move more than 4 shifts: a quad that
+    # degenerated (e.g. far out in a fisheye's undistorted coordinates) keeps its corners
+    moved = np.linalg.norm(out - q, axis=-1)
+    bad = ~(moved <= 4.0 * abs(shift_px)).all(axis=1)
+    out[bad] = q[bad]
+    return out
