@@ -25,6 +25,7 @@ def main(argv: list[str] | None = None) -> int:
         ("other boards", ["bench.boards", *quick]),
         ("speed", ["bench.speed", *quick]),
         ("calibration", ["bench.calibration", *quick]),
+        ("tone curve and edge shift", ["bench.tone", *quick]),
         ("solve time", ["bench.solve_time", *quick]),
         ("real photographs", ["bench.real_photos", "--markdown"]),
         # The real node over DDS; the full runs take ~10 minutes, --quick one short run.

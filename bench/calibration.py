@@ -81,6 +81,28 @@ def plain_opencv(images: list[np.ndarray], cam: Camera) -> Any:
     return Camera(cam.model, K, np.asarray(D).ravel()[:len(cam.dist)], cam.size)
 
 
+def solve_both(dets: list[Detections], cam: Camera, model: str, k3: bool,
+               points: tuple[str, ...] = ("centers", "corners")) -> dict[str, dict[str, Any]]:
+    """points mode -> the calibration's projection difference against ``cam`` (RMS, max, px)
+    and the solver's own figures, or {"error": why}."""
+    out: dict[str, dict[str, Any]] = {}
+    for mode in points:
+        t0 = time.monotonic()
+        try:
+            r = calibrate(dets, BOARD, image_size=cam.size, model=model, points=mode, k3=k3)
+        except CalibrationError as e:
+            out[mode] = {"error": str(e)}
+            continue
+        rms, worst = projection_difference(cam, r)
+        out[mode] = {"proj_rms": rms, "proj_max": worst, "reproj_std": r.reprojection_std_px,
+                     "reproj_max": r.reprojection_max_px, "reproj_rms": r.reprojection_rms_px,
+                     "holdout": r.holdout_rms_px,
+                     "uncertainty_rms": r.projection_uncertainty_rms_px,
+                     "views": len(r.views_used), "outliers": r.points_dropped,
+                     "solve_s": time.monotonic() - t0}
+    return out
+
+
 def accuracy(quick: bool) -> list[dict[str, Any]]:
     """Section 1: one row per camera preset."""
     rows = []
@@ -96,22 +118,7 @@ def accuracy(quick: bool) -> list[dict[str, Any]]:
         row: dict[str, Any] = {"preset": preset, "model": model + (" +k3" if k3 else ""),
                                "render_s": t_render, "detect_s_per_frame": t_detect,
                                "markers": int(sum(len(d) for d in dets))}
-        for points in ("centers", "corners"):
-            t0 = time.monotonic()
-            try:
-                r = calibrate(dets, BOARD, image_size=cam.size, model=model, points=points,
-                              k3=k3)
-            except CalibrationError as e:
-                row[points] = {"error": str(e)}
-                continue
-            rms, worst = projection_difference(cam, r)
-            row[points] = {"proj_rms": rms, "proj_max": worst,
-                           "reproj_std": r.reprojection_std_px,
-                           "reproj_max": r.reprojection_max_px,
-                           "reproj_rms": r.reprojection_rms_px, "holdout": r.holdout_rms_px,
-                           "uncertainty_rms": r.projection_uncertainty_rms_px,
-                           "views": len(r.views_used), "outliers": r.points_dropped,
-                           "solve_s": time.monotonic() - t0}
+        row.update(solve_both(dets, cam, model, k3))
         base = plain_opencv(images, cam)
         if isinstance(base, str):
             row["opencv"] = {"error": base}

@@ -114,3 +114,26 @@ def test_summary_json_has_tone_curve_and_board_check(tmp_path: Path) -> None:
     assert summary["tone_curve"]["gamma"] == pytest.approx(2.2, abs=0.3)
     assert set(summary["board_check"]) >= {"marker_length", "marker_separation", "warning"}
     assert summary["board_check"]["warning"] == ""
+
+
+def test_dim_defocused_jpeg_frame_keeps_gamma_22() -> None:
+    """A single dim, defocused JPEG frame fits a too low gamma (the edges look more linear);
+    it must not switch a gamma 2.2 camera away from 2.2, while a linear camera under the
+    same light is still recognised from one frame."""
+    phot = Photometry(gradient=0.4, vignetting=0.3, full_well=4000.0, read_noise=6.0,
+                      defocus_px=1.7, jpeg_quality=72, exposure=0.1)
+    for gamma in (2.2, 1.0):
+        rng = np.random.default_rng(4403)
+        views = [render_view(BOARD, CAM, r, t, photometry=phot.with_(gamma=gamma), rng=rng)
+                 for r, t in random_poses(BOARD, CAM, 1, rng, partial_fraction=1.0)]
+        det = Detector(BOARD)
+        rms = _corner_rms(views, det)
+        tone = det.tone
+        assert tone.fitted is not None
+        if gamma == 2.2:
+            assert tone.fitted.gamma < 1.7          # the biased best fit ...
+            assert tone.curve == ToneCurve("power", 2.2)  # ... is not taken
+        else:
+            assert tone.curve.gamma < 1.3
+        fixed = _corner_rms(views, Detector(BOARD, DetectorConfig(gamma=gamma)))
+        assert rms <= fixed + 0.002

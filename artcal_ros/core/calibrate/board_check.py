@@ -26,7 +26,7 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.camera import CameraModel
-from artcal_ros.core.detect.edge_shift import marker_growth
+from artcal_ros.core.detect.edge_shift import compensate, marker_growth
 from artcal_ros.core.detections import Detections
 
 __all__ = ["BoardCheck", "check_board"]
@@ -108,7 +108,7 @@ def check_board(views: Sequence[Detections], board: Board,
 
     Args:
         views: detections of one camera; corners with their edge shift removed
-            (``edge_shift_px``) are put back first.
+            (``edge_shift_px``) are moved back first.
         board: the configured board.
         camera: the calibrated camera: points are undistorted through it first.
     """
@@ -126,11 +126,11 @@ def check_board(views: Sequence[Detections], board: Board,
         if camera is not None:
             q = camera.undistort(q.reshape(-1, 2)).reshape(q.shape)
             c = camera.undistort(c)
+        if np.isfinite(det.edge_shift_px) and det.edge_shift_px != 0.0:
+            q = compensate(q, -det.edge_shift_px)  # the shift the detector removed, back
         growth = marker_growth(det.ids, q, c, board)
         x = 2.0 / (L * growth.px_per_m)
         y = growth.growth
-        if np.isfinite(det.edge_shift_px):
-            y = y + det.edge_shift_px * x  # the shift the detector removed
         line = _view_line(y, x)
         if line is None:
             continue

@@ -24,7 +24,8 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.homography import apply_h, homographies
 
-__all__ = ["MarkerGrowth", "compensate", "marker_growth", "view_shift_px"]
+__all__ = ["MarkerGrowth", "compensate", "marker_growth", "neighbourhood_shift_px",
+           "robust_shift_px", "view_shift_px"]
 
 _NEIGHBOURS = ((0, 1), (1, 0), (0, -1), (-1, 0))
 # largest relative misfit of a neighbour's distance to the pitch (an edge shift of a
@@ -96,15 +97,80 @@ def marker_growth(ids: np.ndarray, corners_px: np.ndarray, centers_px: np.ndarra
     return MarkerGrowth(growth, px_per_m, H)
 
 
-def view_shift_px(g: MarkerGrowth, board: Board, *, print_growth: float = 0.0
-                  ) -> tuple[float, float]:
-    """The view's edge shift (outward positive) and its 1-sigma, pixels.
+def neighbourhood_shift_px(ids: np.ndarray, corners_px: np.ndarray, centers_px: np.ndarray,
+                           board: Board) -> np.ndarray:
+    """Each marker's edge shift read against the centres around it, pixels (outward positive).
+
+    The centres of the marker and of its neighbours in the 3 x 3 block of the grid (at
+    least 5 of the 9) give a homography board -> image (least squares); it places the
+    printed corners, and the mean over the four sides of the observed corners' offset
+    along the side's outward normal is the shift. The centres do not move with the
+    edges, and the corners are interpolated between them rather than a neighbour
+    extrapolated from the marker's own corners, so corner noise is not magnified.
 
     Args:
-        g: the view's :func:`marker_growth`.
-        print_growth: the print's own growth (0: the board as configured).
+        ids: (N,) marker ids on ``board``.
+        corners_px: (N, 4, 2) corners, pixels, board order.
+        centers_px: (N, 2) centres, pixels.
+
+    Returns:
+        (N,) shift, pixels; NaN for a marker with fewer than 5 centres in its block.
     """
-    d = (g.growth - print_growth) * 0.5 * board.marker_length * g.px_per_m
+    n = len(ids)
+    if n == 0:
+        return np.zeros(0)
+    k = np.asarray(ids) - board.first_id
+    row, col = np.divmod(k, board.cols)
+    grid = np.full((board.rows + 2, board.cols + 2), -1)
+    grid[row + 1, col + 1] = np.arange(n)
+    centers_px = np.asarray(centers_px, float)
+    corners_px = np.asarray(corners_px, float)
+    # per marker: image coordinates relative to its own centre, in units of its side
+    scale = np.linalg.norm(np.roll(corners_px, -1, axis=1) - corners_px, axis=2).mean(axis=1)
+    scale = np.where(scale > 0, scale, 1.0)
+    rows = []
+    present = np.zeros((n, 9), bool)
+    for m, (dr, dc) in enumerate((a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)):
+        j = grid[row + 1 + dr, col + 1 + dc]
+        present[:, m] = j >= 0
+        uv = (centers_px[np.maximum(j, 0)] - centers_px) / scale[:, None]
+        uv[j < 0] = 0.0
+        X, Y = float(dc), float(dr)     # board units: one pitch; x along cols, y along rows
+        zero, one = np.zeros(n), np.ones(n)
+        u, v = uv[:, 0], uv[:, 1]
+        rows.append(np.stack([X * one, Y * one, one, zero, zero, zero, -u * X, -u * Y, -u], 1)
+                    * present[:, m, None])
+        rows.append(np.stack([zero, zero, zero, X * one, Y * one, one, -v * X, -v * Y, -v], 1)
+                    * present[:, m, None])
+    A = np.stack(rows, axis=1)                         # (N, 18, 9)
+    ok = present.sum(axis=1) >= 5
+    shift = np.full(n, np.nan)
+    if not ok.any():
+        return shift
+    H = np.linalg.svd(A[ok])[2][:, -1, :].reshape(-1, 3, 3)
+    h = 0.5 * board.marker_length / board.pitch
+    square = np.array([[-h, -h], [h, -h], [h, h], [-h, h]])
+    predicted = apply_h(H, np.broadcast_to(square, (len(H), 4, 2)).copy())
+    predicted = predicted * scale[ok, None, None] + centers_px[ok, None, :]
+    observed = corners_px[ok]
+    mid = 0.5 * (predicted + np.roll(predicted, -1, axis=1))
+    tangent = np.roll(predicted, -1, axis=1) - predicted
+    normal = np.stack([tangent[..., 1], -tangent[..., 0]], axis=-1)
+    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    centre = predicted.mean(axis=1, keepdims=True)
+    normal *= np.sign(np.sum((mid - centre) * normal, axis=-1, keepdims=True))
+    err = observed - predicted
+    # a side's offset: the mean of its two corners' offsets along its normal
+    off = 0.5 * (np.sum(err * normal, axis=-1)
+                 + np.sum(np.roll(err, -1, axis=1) * normal, axis=-1))
+    shift[ok] = off.mean(axis=1)
+    return shift
+
+
+def robust_shift_px(d: np.ndarray) -> tuple[float, float]:
+    """A robust mean of per-marker shifts ``d`` (NaN ignored) and its 1-sigma, pixels
+    (inf with fewer than 4 markers)."""
+    d = np.asarray(d, float)
     d = d[np.isfinite(d)]
     if len(d) < 4:
         return 0.0, float("inf")
@@ -114,20 +180,48 @@ def view_shift_px(g: MarkerGrowth, board: Board, *, print_growth: float = 0.0
     return float(np.mean(d[good])), float(np.std(d[good]) / np.sqrt(max(good.sum() - 1, 1)))
 
 
-def compensate(corners_px: np.ndarray, g: MarkerGrowth, shift_px: float,
-               board: Board) -> np.ndarray:
+def view_shift_px(g: MarkerGrowth, board: Board, *, print_growth: float = 0.0
+                  ) -> tuple[float, float]:
+    """The view's edge shift (outward positive) and its 1-sigma, pixels, from the markers'
+    growth against their neighbours (:func:`marker_growth`).
+
+    Args:
+        g: the view's :func:`marker_growth`.
+        print_growth: the print's own growth (0: the board as configured).
+    """
+    return robust_shift_px((g.growth - print_growth) * 0.5 * board.marker_length * g.px_per_m)
+
+
+def compensate(corners_px: np.ndarray, shift_px: float) -> np.ndarray:
     """(N, 4, 2) corners with the edge shift ``shift_px`` (outward positive) removed.
 
-    Each marker's quad shrinks (grows) about its centre in its own homography, so
-    the perspective of a tilted marker is kept.
+    Every side's line moves by ``shift_px`` along its own normal, inward for a positive
+    shift, and adjacent lines are intersected again: exactly the shift
+    :func:`neighbourhood_shift_px` measures, on every side of a tilted marker alike. A
+    quad with a corner that would move by more than 4 shifts (sharper than about 30
+    degrees: degenerate) is left as it is.
     """
-    n = len(corners_px)
-    if n == 0 or shift_px == 0.0:
-        return corners_px
-    half = 0.5 * board.marker_length
-    # the observed quad is a square of half-side half + d_b (board units)
-    d_b = shift_px / g.px_per_m
-    scale = half / (half + d_b)
-    square = np.array([[-half, -half], [half, -half], [half, half], [-half, half]])
-    pts = square[None, :, :] * scale[:, None, None]
-    return apply_h(g.homography, pts)
+    q = np.asarray(corners_px, dtype=np.float64)
+    if len(q) == 0 or shift_px == 0.0:
+        return q
+    nxt = np.roll(q, -1, axis=1)
+    tangent = nxt - q
+    normal = np.stack([tangent[..., 1], -tangent[..., 0]], axis=-1)
+    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    centre = q.mean(axis=1, keepdims=True)
+    normal *= np.sign(np.sum((0.5 * (q + nxt) - centre) * normal, axis=-1, keepdims=True))
+    # side i runs from corner i to i+1: n_i . x = n_i . q_i - shift
+    level = np.sum(normal * q, axis=-1) - shift_px
+    prev_n, prev_c = np.roll(normal, 1, axis=1), np.roll(level, 1, axis=1)
+    # corner i is where side i-1 and side i meet
+    det = prev_n[..., 0] * normal[..., 1] - prev_n[..., 1] * normal[..., 0]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        x = (prev_c * normal[..., 1] - level * prev_n[..., 1]) / det
+        y = (prev_n[..., 0] * level - normal[..., 0] * prev_c) / det
+    out = np.stack([x, y], axis=-1)
+    # a corner sharper than about 30 degrees would move more than 4 shifts: a quad that
+    # degenerated (e.g. far out in a fisheye's undistorted coordinates) keeps its corners
+    moved = np.linalg.norm(out - q, axis=-1)
+    bad = ~(moved <= 4.0 * abs(shift_px)).all(axis=1)
+    out[bad] = q[bad]
+    return out

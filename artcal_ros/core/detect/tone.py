@@ -14,12 +14,15 @@ best fit is the minimum of a parabola through the pooled costs.
 The curve the detector then *uses* is the common gamma 2.2 unless the evidence
 against it is strong: its cost more than :data:`SWITCH_COST` above the best
 candidate's, more than :data:`SWITCH_SIGMAS` sigma from the best fit, and (for a
-power law) more than :data:`SWITCH_GAMMA` away in gamma. Measured on renders
-with exact truth, the best fit reads 0.1-0.15 high on clean frames and up to
-0.35 low under strong noise (the noise in linear light grows with the gamma it is
-read through); so a best fit within 0.4 of 2.2 is no evidence of another curve. A
-linear camera (read as 2.2 its corners are off by 0.3 px) clears every threshold
-from one frame.
+power law) more than :data:`SWITCH_GAMMA` above it or :data:`SWITCH_GAMMA_BELOW`
+below it in gamma. Measured on renders with exact truth, the best fit reads
+0.1-0.15 high on clean frames, up to 0.35 low under strong noise (the noise in
+linear light grows with the gamma it is read through) and up to 0.75 low on single
+dim, defocused JPEG frames (JPEG drops fine detail after the encoding: a blur in
+encoded values, which looks like a flatter curve); so a best fit within 0.4 above
+or 0.85 below 2.2 is no evidence of another curve. A linear camera (read as 2.2 its
+corners are off by 0.3 px; its best fit stays below 1.2 on those frames too) clears
+every threshold from one frame.
 """
 
 from __future__ import annotations
@@ -40,6 +43,10 @@ DEFAULT_GAMMA = 2.2
 SWITCH_COST = 0.5
 SWITCH_SIGMAS = 3.0
 SWITCH_GAMMA = 0.4
+# ... and below the start curve by more than this: noise, and JPEG's loss of fine detail
+# (a blur applied after the encoding), make edges look more linear than they are; single
+# dim, defocused JPEG frames of a gamma 2.2 camera have fitted 1.46
+SWITCH_GAMMA_BELOW = 0.85
 # the best fit's systematic error on renders (see the module docstring), 1-sigma
 _SYSTEMATIC_SIGMA = 0.15
 
@@ -214,7 +221,8 @@ class TonePool:
         fitted = ToneCurve("power", round(gamma, 3))
         # a best fit at the top of the grid, or without a minimum, identifies no curve
         # (defocused frames fit the steepest candidate best: the blur model's misfit)
-        far = ((abs(gamma - self.start.gamma) > SWITCH_GAMMA or self.start.kind == "srgb")
+        margin = SWITCH_GAMMA_BELOW if gamma < self.start.gamma else SWITCH_GAMMA
+        far = ((abs(gamma - self.start.gamma) > margin or self.start.kind == "srgb")
                and np.isfinite(stat) and gamma < grid[-1])
         if self.costs[n_pow] < best:
             fitted, best, far = CANDIDATES[n_pow], float(self.costs[n_pow]), True
