@@ -36,11 +36,6 @@ def _views(board: Board, n: int, seed: int, partial: float = 0.0) -> tuple[Rende
                  for r, t in random_poses(board, cam, n, rng, partial_fraction=partial))
 
 
-def _half_turn(board: Board) -> np.ndarray:
-    """(N,) the id each point takes when the print is turned by 180 degrees."""
-    return board.point_ids[::-1]
-
-
 # --- geometry ---------------------------------------------------------------------------
 def test_object_points_follow_opencvs_calibration_sample() -> None:
     s = 0.03
@@ -141,14 +136,9 @@ def test_circle_centres_against_truth(board: Board) -> None:
             continue
         found += 1
         truth = view.points_px
-        err = np.linalg.norm(dets.points_px - truth[dets.point_ids], axis=1)
-        turned = np.linalg.norm(dets.points_px - truth[_half_turn(board)[dets.point_ids]],
-                                axis=1)
-        # ids are those of the print or of the print turned by a half turn (which looks the
-        # same), chosen by the documented rule: point 0 nearer the image's top-left
-        if turned.max() < err.max():
-            err = turned
-            assert truth[-1].sum() < truth[0].sum()
+        # ids are the print's up to its symmetry (test_turned_prints_... checks which)
+        err = min((np.linalg.norm(dets.points_px - truth[s[dets.point_ids]], axis=1)
+                   for s in _symmetries(board)), key=lambda e: float(e.max()))
         assert err.max() < 0.1
         assert len(dets.point_ids) >= len(board.point_ids) - 2
         errors.append(err)
@@ -219,3 +209,58 @@ def test_detect_json_lists_circle_points(tmp_path: Path) -> None:
     assert ids == sorted(ids) and len(ids) >= 42
     xy = np.array([p["xy"] for p in image["points"]])
     assert np.abs(xy - view.points_px[ids]).max() < 0.1
+
+
+def _symmetries(board: Board) -> list[np.ndarray]:
+    """Id permutations under which the print maps onto itself by a turn in its plane."""
+    obj = board.object_points()[:, :2]
+    c = obj.mean(axis=0)
+    out = []
+    for k in range(4):
+        a = k * np.pi / 2
+        R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        moved = (obj - c) @ R.T + c
+        d = np.linalg.norm(moved[:, None] - obj[None], axis=2)
+        if np.all(d.min(axis=1) < 1e-9):
+            out.append(d.argmin(axis=1))
+    return out
+
+
+@pytest.mark.parametrize(("board", "n_symmetries"), [
+    (CIRCLES, 2),          # a half turn
+    (ACIRCLES, 1),         # 11 rows: none, every id is exact
+    (Board(board_type="acircles", cols=4, rows=10, square_length=0.03), 2),
+    (Board(board_type="circles", cols=5, rows=5, square_length=0.04), 4)],
+    ids=["circles", "acircles", "acircles_even_rows", "square"])
+def test_turned_prints_are_numbered_by_the_half_turn_rule(board: Board,
+                                                          n_symmetries: int) -> None:
+    cam = Camera.preset("webcam")
+    rng = np.random.default_rng(75)
+    rvec, tvec = random_poses(board, cam, 1, rng, partial_fraction=0.0)[0]
+    R = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64))[0]
+    x0, y0, x1, y1 = board.extent_m
+    c = np.array([(x0 + x1) / 2, (y0 + y1) / 2, 0.0])
+    syms = _symmetries(board)
+    assert len(syms) == n_symmetries
+    detector = Detector(board)
+    found = 0
+    for k in range(4):      # the print turned in its plane about its centre
+        a = k * np.pi / 2
+        Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+        R2 = R @ Rz
+        t2 = R @ (c - Rz @ c) + np.asarray(tvec, dtype=np.float64).reshape(3)
+        view = render_view(board, cam, cv2.Rodrigues(R2)[0].ravel(), t2,
+                           photometry=Photometry.clean(), rng=rng)
+        dets = detector.detect(view.image)
+        if not len(dets.point_ids):
+            continue
+        # the ids are the print's up to one of its symmetries ...
+        errs = [np.linalg.norm(dets.points_px - view.points_px[s[dets.point_ids]], axis=1)
+                for s in syms]
+        best = int(np.argmin([e.max() for e in errs]))
+        assert errs[best].max() < 0.1
+        # ... the one whose point 0 is nearest the image's top-left
+        zero = [view.points_px[s[0]].sum() for s in syms]
+        assert best == int(np.argmin(zero))
+        found += 1
+    assert found >= 2
