@@ -4,6 +4,7 @@ printable board, and detection against the renderer's exact truth."""
 from __future__ import annotations
 
 import json
+import zlib
 from functools import cache
 from pathlib import Path
 
@@ -18,7 +19,13 @@ from artcal_ros.core.detect.circle_grid import find_circle_grid, orient_grid
 from artcal_ros.core.detect.image import to_gray8
 from artcal_ros.core.errors import BoardError, ParameterError
 from artcal_ros.core.params import validate
-from artcal_ros.core.printable import board_to_png_px, layout_page, render_png
+from artcal_ros.core.printable import (
+    board_to_png_px,
+    layout_page,
+    render_pdf,
+    render_png,
+    render_svg,
+)
 from artcal_ros.synth.camera import Camera
 from artcal_ros.synth.photometry import Photometry
 from artcal_ros.synth.poses import random_poses
@@ -120,9 +127,14 @@ def test_printed_circles_sit_at_their_object_points_at_exact_scale(board: Board,
         centre = np.array([(patch * xx).sum(), (patch * yy).sum()]) / area + [x0, y0]
         np.testing.assert_allclose(centre, (x, y), atol=0.02)          # px at 200 dpi
         assert area == pytest.approx(np.pi * r_px ** 2, rel=0.01)       # 8 mm discs
-    svg = layout_page(board)
-    assert len(svg.discs_mm) == len(board.point_ids)
-    np.testing.assert_allclose(svg.discs_mm[:, 2], 4.0)
+    assert len(layout.discs_mm) == len(board.point_ids)
+    np.testing.assert_allclose(layout.discs_mm[:, 2], 4.0)      # 8 mm circles
+    # the vector formats draw the same discs: SVG circles, PDF closed Bezier paths
+    svg = render_svg(layout)
+    for x, y, r in layout.discs_mm:
+        assert f'<circle cx="{x:.4f}" cy="{y:.4f}" r="{r:.4f}"' in svg
+    pdf = zlib.decompress(render_pdf(layout).split(b"stream\n")[1].split(b"\nendstream")[0])
+    assert pdf.count(b" c h") == len(board.point_ids)
 
 
 # --- detection --------------------------------------------------------------------------
@@ -264,3 +276,26 @@ def test_turned_prints_are_numbered_by_the_half_turn_rule(board: Board,
         assert best == int(np.argmin(zero))
         found += 1
     assert found >= 2
+
+
+def test_rendered_circles_have_their_true_area_and_centre() -> None:
+    # straight on through a lens without distortion, a circle's image is a circle about the
+    # image of its centre: the renderer's coverage must have that centroid and area
+    from artcal_ros.synth.render import board_coverage
+
+    web = Camera.preset("webcam")
+    cam = Camera(web.model, web.K, np.zeros_like(web.dist), web.size)
+    board = Board(board_type="acircles", cols=3, rows=4, square_length=0.03)
+    rvec, tvec = np.array([0.0, 0.0, 0.1]), np.array([-0.06, -0.05, 0.6])
+    ink = 1.0 - board_coverage(board, cam, rvec, tvec).white
+    centres = cam.project(board.object_points(), rvec, tvec)
+    r_px = cam.K[0, 0] * board.circles.radius / 0.6 if board.circles else 0.0
+    yy, xx = np.mgrid[0:ink.shape[0], 0:ink.shape[1]]
+    for x, y in centres:
+        near = np.hypot(xx - x, yy - y) < r_px + 2
+        w = ink[near]
+        np.testing.assert_allclose([np.sum(w * xx[near]) / w.sum(),
+                                    np.sum(w * yy[near]) / w.sum()], (x, y), atol=2e-3)
+        # an ellipse of semi-axes fx r / z and fy r / z
+        assert w.sum() == pytest.approx(np.pi * r_px ** 2 * cam.K[1, 1] / cam.K[0, 0],
+                                        rel=5e-4)
