@@ -301,3 +301,15 @@ def test_rendered_circles_have_their_true_area_and_centre() -> None:
         # an ellipse of semi-axes fx r / z and fy r / z
         assert w.sum() == pytest.approx(np.pi * r_px ** 2 * cam.K[1, 1] / cam.K[0, 0],
                                         rel=5e-4)
+
+
+def test_a_known_camera_straightens_the_edges_instead_of_the_fitted_lens() -> None:
+    cam = Camera.preset("webcam")
+    errors = []
+    for view in _views(CIRCLES, 6, 71)[:3]:
+        dets = Detector(CIRCLES).detect(view.image, cam)
+        if len(dets.point_ids):
+            errors.append(np.linalg.norm(dets.points_px - view.points_px[dets.point_ids],
+                                         axis=1))
+    assert errors
+    assert np.sqrt(np.mean(np.concatenate(errors) ** 2)) < 0.03
