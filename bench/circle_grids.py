@@ -12,10 +12,11 @@ views found and the RMS distance of its centres from the true images of the circ
 - OpenCV: ``findCirclesGrid`` with its default blob detector and flags (its blob
   centroids), matched to the nearest true centre.
 
-A point of artcal_ros more than 1 px from the true image of its id is a wrong id. Both grids
-look the same turned by a half turn; views where artcal_ros numbers the print from the far
-end (its documented rule: point 0 is the one nearer the image's top-left) are counted as
-"half turn" and measured with the turned ids.
+A point of artcal_ros more than 1 px from the true image of its id is a wrong id. The 9 x 6
+symmetric grid looks the same turned by a half turn; views where artcal_ros numbers it from
+the far end (its documented rule: point 0 is the one nearer the image's top-left) are
+counted as "half turn" and measured with the turned ids. (The 4 x 11 asymmetric grid has no
+such symmetry: every id of it is exact.)
 """
 
 from __future__ import annotations

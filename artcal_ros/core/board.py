@@ -70,9 +70,9 @@ def board_type_complaint(board_type: str) -> str | None:
 class Board:
     """A calibration board (lengths in metres); ``board_type`` says which layout.
 
-    ``cols`` x ``rows`` counts markers (marker_grid), inner corners (chessboard) or squares
-    (charuco). Build one with :meth:`from_params` or directly; invalid values raise
-    :class:`BoardError` naming the parameter.
+    ``cols`` x ``rows`` counts markers (marker_grid), inner corners (chessboard), squares
+    (charuco) or circles (circles, acircles). Build one with :meth:`from_params` or
+    directly; invalid values raise :class:`BoardError` naming the parameter.
     """
 
     cols: int = 19

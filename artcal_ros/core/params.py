@@ -177,7 +177,7 @@ def _board_fits(values: Mapping[str, ParamValue]) -> str | None:
         if int(values[name]) < 2:
             what = {"chessboard": "inner corners", "charuco": "squares"}.get(str(kind),
                                                                              "circles")
-            return (f"parameter '{name}': {values[name]} is too few for a {kind}; "
+            return (f"parameter '{name}': {values[name]} is too few for a {kind} board; "
                     f"use at least 2 ({what})")
     if kind == "charuco":
         ml, sl = float(values["board.marker_length"]), float(values["board.square_length"])

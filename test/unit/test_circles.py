@@ -4,6 +4,7 @@ printable board, and detection against the renderer's exact truth."""
 from __future__ import annotations
 
 import json
+import zlib
 from functools import cache
 from pathlib import Path
 
@@ -18,7 +19,13 @@ from artcal_ros.core.detect.circle_grid import find_circle_grid, orient_grid
 from artcal_ros.core.detect.image import to_gray8
 from artcal_ros.core.errors import BoardError, ParameterError
 from artcal_ros.core.params import validate
-from artcal_ros.core.printable import board_to_png_px, layout_page, render_png
+from artcal_ros.core.printable import (
+    board_to_png_px,
+    layout_page,
+    render_pdf,
+    render_png,
+    render_svg,
+)
 from artcal_ros.synth.camera import Camera
 from artcal_ros.synth.photometry import Photometry
 from artcal_ros.synth.poses import random_poses
@@ -34,11 +41,6 @@ def _views(board: Board, n: int, seed: int, partial: float = 0.0) -> tuple[Rende
     rng = np.random.default_rng(seed)
     return tuple(render_view(board, cam, r, t, photometry=Photometry.clean(), rng=rng)
                  for r, t in random_poses(board, cam, n, rng, partial_fraction=partial))
-
-
-def _half_turn(board: Board) -> np.ndarray:
-    """(N,) the id each point takes when the print is turned by 180 degrees."""
-    return board.point_ids[::-1]
 
 
 # --- geometry ---------------------------------------------------------------------------
@@ -73,6 +75,8 @@ def test_opencv_finds_the_grid_of_our_render_in_the_documented_order() -> None:
         assert oriented is not None
         err = np.linalg.norm(oriented[0].reshape(-1, 2) - view.points_px, axis=1)
         assert err.max() < 1.5, board.board_type     # blob centres, in the board's order
+        if board is ACIRCLES:       # no symmetry: our ids are OpenCV's own order
+            assert np.array_equal(oriented[0], grid)
 
 
 # --- parameters -------------------------------------------------------------------------
@@ -125,9 +129,14 @@ def test_printed_circles_sit_at_their_object_points_at_exact_scale(board: Board,
         centre = np.array([(patch * xx).sum(), (patch * yy).sum()]) / area + [x0, y0]
         np.testing.assert_allclose(centre, (x, y), atol=0.02)          # px at 200 dpi
         assert area == pytest.approx(np.pi * r_px ** 2, rel=0.01)       # 8 mm discs
-    svg = layout_page(board)
-    assert len(svg.discs_mm) == len(board.point_ids)
-    np.testing.assert_allclose(svg.discs_mm[:, 2], 4.0)
+    assert len(layout.discs_mm) == len(board.point_ids)
+    np.testing.assert_allclose(layout.discs_mm[:, 2], 4.0)      # 8 mm circles
+    # the vector formats draw the same discs: SVG circles, PDF closed Bezier paths
+    svg = render_svg(layout)
+    for x, y, r in layout.discs_mm:
+        assert f'<circle cx="{x:.4f}" cy="{y:.4f}" r="{r:.4f}"' in svg
+    pdf = zlib.decompress(render_pdf(layout).split(b"stream\n")[1].split(b"\nendstream")[0])
+    assert pdf.count(b" c h") == len(board.point_ids)
 
 
 # --- detection --------------------------------------------------------------------------
@@ -141,14 +150,9 @@ def test_circle_centres_against_truth(board: Board) -> None:
             continue
         found += 1
         truth = view.points_px
-        err = np.linalg.norm(dets.points_px - truth[dets.point_ids], axis=1)
-        turned = np.linalg.norm(dets.points_px - truth[_half_turn(board)[dets.point_ids]],
-                                axis=1)
-        # ids are those of the print or of the print turned by a half turn (which looks the
-        # same), chosen by the documented rule: point 0 nearer the image's top-left
-        if turned.max() < err.max():
-            err = turned
-            assert truth[-1].sum() < truth[0].sum()
+        # ids are the print's up to its symmetry (test_turned_prints_... checks which)
+        err = min((np.linalg.norm(dets.points_px - truth[s[dets.point_ids]], axis=1)
+                   for s in _symmetries(board)), key=lambda e: float(e.max()))
         assert err.max() < 0.1
         assert len(dets.point_ids) >= len(board.point_ids) - 2
         errors.append(err)
@@ -219,3 +223,93 @@ def test_detect_json_lists_circle_points(tmp_path: Path) -> None:
     assert ids == sorted(ids) and len(ids) >= 42
     xy = np.array([p["xy"] for p in image["points"]])
     assert np.abs(xy - view.points_px[ids]).max() < 0.1
+
+
+def _symmetries(board: Board) -> list[np.ndarray]:
+    """Id permutations under which the print maps onto itself by a turn in its plane."""
+    obj = board.object_points()[:, :2]
+    c = obj.mean(axis=0)
+    out = []
+    for k in range(4):
+        a = k * np.pi / 2
+        R = np.array([[np.cos(a), -np.sin(a)], [np.sin(a), np.cos(a)]])
+        moved = (obj - c) @ R.T + c
+        d = np.linalg.norm(moved[:, None] - obj[None], axis=2)
+        if np.all(d.min(axis=1) < 1e-9):
+            out.append(d.argmin(axis=1))
+    return out
+
+
+@pytest.mark.parametrize(("board", "n_symmetries"), [
+    (CIRCLES, 2),          # a half turn
+    (ACIRCLES, 1),         # 11 rows: none, every id is exact
+    (Board(board_type="acircles", cols=4, rows=10, square_length=0.03), 2),
+    (Board(board_type="circles", cols=5, rows=5, square_length=0.04), 4)],
+    ids=["circles", "acircles", "acircles_even_rows", "square"])
+def test_turned_prints_are_numbered_by_the_half_turn_rule(board: Board,
+                                                          n_symmetries: int) -> None:
+    cam = Camera.preset("webcam")
+    rng = np.random.default_rng(75)
+    rvec, tvec = random_poses(board, cam, 1, rng, partial_fraction=0.0)[0]
+    R = cv2.Rodrigues(np.asarray(rvec, dtype=np.float64))[0]
+    x0, y0, x1, y1 = board.extent_m
+    c = np.array([(x0 + x1) / 2, (y0 + y1) / 2, 0.0])
+    syms = _symmetries(board)
+    assert len(syms) == n_symmetries
+    detector = Detector(board)
+    found = 0
+    for k in range(4):      # the print turned in its plane about its centre
+        a = k * np.pi / 2
+        Rz = np.array([[np.cos(a), -np.sin(a), 0], [np.sin(a), np.cos(a), 0], [0, 0, 1]])
+        R2 = R @ Rz
+        t2 = R @ (c - Rz @ c) + np.asarray(tvec, dtype=np.float64).reshape(3)
+        view = render_view(board, cam, cv2.Rodrigues(R2)[0].ravel(), t2,
+                           photometry=Photometry.clean(), rng=rng)
+        dets = detector.detect(view.image)
+        if not len(dets.point_ids):
+            continue
+        # the ids are the print's up to one of its symmetries ...
+        errs = [np.linalg.norm(dets.points_px - view.points_px[s[dets.point_ids]], axis=1)
+                for s in syms]
+        best = int(np.argmin([e.max() for e in errs]))
+        assert errs[best].max() < 0.1
+        # ... the one whose point 0 is nearest the image's top-left
+        zero = [view.points_px[s[0]].sum() for s in syms]
+        assert best == int(np.argmin(zero))
+        found += 1
+    assert found >= 2
+
+
+def test_rendered_circles_have_their_true_area_and_centre() -> None:
+    # straight on through a lens without distortion, a circle's image is a circle about the
+    # image of its centre: the renderer's coverage must have that centroid and area
+    from artcal_ros.synth.render import board_coverage
+
+    web = Camera.preset("webcam")
+    cam = Camera(web.model, web.K, np.zeros_like(web.dist), web.size)
+    board = Board(board_type="acircles", cols=3, rows=4, square_length=0.03)
+    rvec, tvec = np.array([0.0, 0.0, 0.1]), np.array([-0.06, -0.05, 0.6])
+    ink = 1.0 - board_coverage(board, cam, rvec, tvec).white
+    centres = cam.project(board.object_points(), rvec, tvec)
+    r_px = cam.K[0, 0] * board.circles.radius / 0.6 if board.circles else 0.0
+    yy, xx = np.mgrid[0:ink.shape[0], 0:ink.shape[1]]
+    for x, y in centres:
+        near = np.hypot(xx - x, yy - y) < r_px + 2
+        w = ink[near]
+        np.testing.assert_allclose([np.sum(w * xx[near]) / w.sum(),
+                                    np.sum(w * yy[near]) / w.sum()], (x, y), atol=2e-3)
+        # an ellipse of semi-axes fx r / z and fy r / z
+        assert w.sum() == pytest.approx(np.pi * r_px ** 2 * cam.K[1, 1] / cam.K[0, 0],
+                                        rel=5e-4)
+
+
+def test_a_known_camera_straightens_the_edges_instead_of_the_fitted_lens() -> None:
+    cam = Camera.preset("webcam")
+    errors = []
+    for view in _views(CIRCLES, 6, 71)[:3]:
+        dets = Detector(CIRCLES).detect(view.image, cam)
+        if len(dets.point_ids):
+            errors.append(np.linalg.norm(dets.points_px - view.points_px[dets.point_ids],
+                                         axis=1))
+    assert errors
+    assert np.sqrt(np.mean(np.concatenate(errors) ** 2)) < 0.03

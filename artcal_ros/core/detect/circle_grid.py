@@ -3,9 +3,10 @@
 - :func:`find_circle_grid`: OpenCV's ``findCirclesGrid`` (its grid search, then its
   clustering search) with a blob detector for small and large circles alike.
 - :func:`orient_grid`: of the grid's flips and turns, the orders that fit a homography of
-  the board's object points with the print facing the camera; of those (the board's half
-  turn, and a square symmetric grid's quarter turns, look the same) the one whose point 0
-  is nearest the image's top-left corner.
+  the board's object points with the print facing the camera; of those (a symmetric grid
+  and an asymmetric one with an even number of rows look the same turned by a half turn, a
+  square symmetric grid by a quarter turn; an asymmetric grid with an odd number of rows
+  fits one order only) the one whose point 0 is nearest the image's top-left corner.
 - :func:`misplaced`: blobs off the place their grid neighbours predict.
 - :func:`grid_continues`: circles where the pattern's next row or column would be (a print
   larger than the board configured).

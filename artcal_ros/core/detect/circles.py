@@ -5,11 +5,13 @@ A circle grid has no code, so a view names its circles only when OpenCV's
 
 Identities (:mod:`artcal_ros.core.detect.circle_grid`): the grid's order is checked
 against the board: the order (among the grid's flips and turns) must fit a homography from
-the board's object points to the image with the print facing the camera. Both grids look
-the same turned by a half turn (a square symmetric grid also by a quarter turn); of the
-orders that fit, the one whose point 0 is nearest the image's top-left corner (least
-x + y, as for the chessboard and in camera_calibration) is taken. Ids are exact up to that
-symmetry, which no image of the print can resolve and a calibration does not need. A blob
+the board's object points to the image with the print facing the camera. A symmetric grid
+looks the same turned by a half turn (a square one by a quarter turn too), and so does an
+asymmetric grid with an even number of rows; of the orders that fit, the one whose point 0
+is nearest the image's top-left corner (least x + y, as for the chessboard and in
+camera_calibration) is taken. Ids are exact up to that symmetry, which no image of the
+print can resolve and a calibration does not need (an asymmetric grid with an odd number
+of rows, OpenCV's 4 x 11, fits one order only: every id exact). A blob
 off the place its grid neighbours predict is left out, and a view is refused when circles
 show where the pattern's next row or column would be (a larger print: OpenCV finds a
 smaller grid in it, and ids counted from its edge would be wrong).
