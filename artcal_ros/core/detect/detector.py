@@ -45,7 +45,7 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.camera import CameraModel, HasCamera
-from artcal_ros.core.detect.candidates import CandidateFinder
+from artcal_ros.core.detect.candidates import CandidateFinder, is_clipped
 from artcal_ros.core.detect.centers import diagonal_centers
 from artcal_ros.core.detect.charuco import charuco_corners
 from artcal_ros.core.detect.chessboard import detect_chessboard
@@ -371,6 +371,7 @@ class Detector:
             corners, sigma = quads, np.full((len(ids), 4), np.nan)
         corners = np.asarray(corners, dtype=np.float64)
 
+        clipped = is_clipped(gray8)
         errors = code_errors(lin, corners, dark, ids, self.board)
         support = neighbour_support(corners, ids, self.board, self.config.neighbour_tolerance,
                                     self._grow_to)
@@ -378,7 +379,7 @@ class Detector:
         if self.config.max_bit_errors_isolated is not None:
             ok |= (support == 0) & (errors <= self.config.max_bit_errors_isolated)
         ok &= support >= 0
-        ok &= sides_are_edges(lin, corners, dark, bits)
+        ok &= sides_are_edges(lin, corners, dark, bits, clipped=clipped)
         corners, sigma, ids = corners[ok], sigma[ok], ids[ok]
 
         centers, center_sigma = diagonal_centers(corners, sigma, lens)
