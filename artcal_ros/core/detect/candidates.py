@@ -17,8 +17,8 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect.decode import PatternTable, decode_quads
 from artcal_ros.core.detect.edges import refine_quads, same_edges
-from artcal_ros.core.detect.sampling import border_is_dark
-from artcal_ros.core.homography import shortest_sides
+from artcal_ros.core.detect.sampling import border_is_dark, ring_median, ring_points
+from artcal_ros.core.homography import module_homographies, shortest_sides
 
 # share of saturated pixels above which a frame gets the bright-end pass
 CLIPPED_SHARE = 0.15
@@ -33,6 +33,30 @@ def is_clipped(gray8: np.ndarray) -> bool:
     top = int(gray8.max())
     sub = gray8[::2, ::2]
     return top >= 200 and np.count_nonzero(sub >= top) >= CLIPPED_SHARE * sub.size
+
+
+def dark_level(lin: np.ndarray, quads: np.ndarray, bits: int) -> float:
+    """Median over the quads of the darker of their border and the ring just outside it.
+
+    In a clipped frame that is the ink's level against saturation (1.0): how far over
+    the paper is exposed, for a print of ordinary contrast.
+
+    Args:
+        lin: (H, W) linear intensity image (saturation at 1).
+        quads: (M, 4, 2) marker corners, pixels.
+        bits: code cells per marker side.
+
+    Returns:
+        the level (linear), NaN without quads.
+    """
+    if len(quads) == 0:
+        return float("nan")
+    n = bits + 2.0
+    H = module_homographies(quads, bits)
+    s = np.linspace(1.0, n - 1.0, 2 * (bits + 2))
+    inside = ring_median(lin, H, ring_points(s, 0.5, n - 0.5))
+    outside = ring_median(lin, H, ring_points(s, -0.5, n + 0.5))
+    return float(np.median(np.minimum(inside, outside)))
 
 
 def saturation_image(gray8: np.ndarray) -> np.ndarray | None:

@@ -82,7 +82,8 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
                  quiet_modules: float = 1.0, outer_same: np.ndarray | None = None,
                  beyond_modules: float = 1.0, max_profiles: int = 40,
                  lens_pool: LensPool | None = None,
-                 tone_probe: Callable[..., None] | None = None) -> EdgeFit:
+                 tone_probe: Callable[..., None] | None = None,
+                 censor_at: float | None = None) -> EdgeFit:
     """Refine approximate quads to sub-pixel corners from their border edges.
 
     Args:
@@ -119,6 +120,8 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         tone_probe: optional ``tone_probe(probe_fit)``, called with a :class:`ProbeFit`
             after every pass's fit; the last call is the final fit's (see
             :func:`~artcal_ros.core.detect.tone.probe_costs`).
+        censor_at: optional saturation level of ``lin``: saturated samples are censored
+            in the model fit (see :func:`~artcal_ros.core.detect.step_model.fit_step_model`).
 
     Returns:
         the :class:`EdgeFit`.
@@ -160,7 +163,7 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
     fit_blur = _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same,
                              quiet_modules, passes, order, None, margin_px,
                              None if later else outer_same, beyond_modules,
-                             tone_probe=tone_probe)
+                             tone_probe=tone_probe, censor_at=censor_at)
     if later:
         used_lens = estimate_division(model, quads, t, present, lin.shape, pool=lens_pool)
     if used_lens is not None:
@@ -168,13 +171,14 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         model.coef[:, 2] = lens_bend(used_lens, a, u, n, length)
         _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same,
                       quiet_modules, 1, np.full(S, 2), used_lens, margin_px, outer_same,
-                      beyond_modules, fit_blur, tone_probe=tone_probe)
+                      beyond_modules, fit_blur, tone_probe=tone_probe, censor_at=censor_at)
     else:
         _drop_flat_parabolas(model)
         if later and outer_same is not None:
             _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same,
                           quiet_modules, 1, model.order, None, margin_px, outer_same,
-                          beyond_modules, fit_blur, tone_probe=tone_probe)
+                          beyond_modules, fit_blur, tone_probe=tone_probe,
+                          censor_at=censor_at)
     corners, sigma = intersect_sides(model, a, u, n, M)
     side_ok = model.count >= 4
     ok = side_ok.reshape(M, 4).all(axis=1) & np.isfinite(corners).all(axis=(1, 2))
@@ -255,7 +259,8 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
                   lens: Lens | None = None,
                   corner_clear: float = 1.5, outer_same: np.ndarray | None = None,
                   beyond_modules: float = 1.0, start_blur: np.ndarray | None = None,
-                  tone_probe: Callable[..., None] | None = None) -> np.ndarray:
+                  tone_probe: Callable[..., None] | None = None,
+                  censor_at: float | None = None) -> np.ndarray:
     """Blurred-step model fits (see :mod:`~artcal_ros.core.detect.step_model`); updates ``model``.
 
     ``fit_order`` (S,) says per side whether the parabola term is free (3) or held
@@ -277,7 +282,7 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         corner_clear: see above, pixels.
         start_blur: (S,) the blur the model fit starts from (an earlier pass's), pixels;
             without, the frame's blur from a pilot fit of every 8th side.
-        tone_probe: see :func:`refine_quads`.
+        tone_probe, censor_at: see :func:`refine_quads`.
 
     Returns:
         (S,) the fitted blur, pixels.
@@ -326,7 +331,7 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
             s=s_c, side=sid, n_sides=S, basis=basis, far=far, module_px=m_s,
             fit_order=fit_order, normal=n, tol_px=_FIT_TOL_PX,
             outer=None if known is None else known[sid].astype(np.float32),
-            quiet_px=None if known is None else quiet_modules * m_s)
+            quiet_px=None if known is None else quiet_modules * m_s, censor_at=censor_at)
 
         def fit(vals: np.ndarray = values, coef0: np.ndarray = model.coef,
                 common: dict[str, Any] = common,

@@ -134,13 +134,16 @@ def _median_of(values: np.ndarray, s: np.ndarray, basis: np.ndarray, c: np.ndarr
 def _normal_equations(p: np.ndarray, lo: int, hi: int, values: np.ndarray, s: np.ndarray,
                       basis: np.ndarray, far: np.ndarray, module_px: np.ndarray,
                       outer: np.ndarray, quiet_px: np.ndarray, box_a: float, box_b: float,
-                      quad: float, N: np.ndarray, g: np.ndarray) -> tuple[float, float]:
+                      quad: float, N: np.ndarray, g: np.ndarray, sat: float
+                      ) -> tuple[float, float]:
     """Gauss-Newton normal equations of one side's samples lo..hi at parameters p (6,).
 
     Fills N (6, 6) = J^T J and g (6,) = J^T r; returns the cost r^T r and its part
     from the samples across the edge's transition (within 0.7 px plus two blurs of
     it, and less than half a module: where the tone curve shapes the profile). The
-    model is the module docstring's; p = (edge polynomial (3), A, D, log w).
+    model is the module docstring's; p = (edge polynomial (3), A, D, log w). A sample
+    at or above ``sat`` (a saturated pixel) is censored: it only says the light there
+    reached saturation, so it counts only where the model predicts less.
     """
     rows = far.shape[1]
     has_outer = outer.shape[0] > 0
@@ -177,6 +180,8 @@ def _normal_equations(p: np.ndarray, lo: int, hi: int, values: np.ndarray, s: np
             de += c * (pdf / w_eff)
             gw -= c * (pdf * z * shrink)
         res = values[i] - (p[3] + D * F)
+        if values[i] >= sat and res <= 0.0:
+            continue
         cost += res * res
         if abs(d) < band and abs(d) < 0.5 * module_px[i]:
             band_cost += res * res
@@ -240,8 +245,8 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
                coef0: np.ndarray, far: np.ndarray, module_px: np.ndarray,
                fit_order: np.ndarray, normal: np.ndarray, outer: np.ndarray,
                quiet_px: np.ndarray, cov_scale: float, iterations: int, blur0: np.ndarray,
-               tol_px: float, which: np.ndarray, coef: np.ndarray, cov: np.ndarray,
-               blur: np.ndarray, cost_out: np.ndarray) -> None:
+               tol_px: float, sat: float, which: np.ndarray, coef: np.ndarray,
+               cov: np.ndarray, blur: np.ndarray, cost_out: np.ndarray) -> None:
     """Damped Gauss-Newton fit of the sides ``which``; see :func:`fit_step_model`.
 
     Writes rows ``which`` of coef (S, 3), cov (S, 3, 3), blur (S,) and cost_out (S,)
@@ -266,7 +271,7 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
         Nt = np.empty((6, 6))
         gt = np.empty(6)
         cost, band_cost = _normal_equations(p, lo, hi, values, s, basis, far, module_px,
-                                            outer, quiet_px, box_a, box_b, quad, N, g)
+                                            outer, quiet_px, box_a, box_b, quad, N, g, sat)
         lam = 1e-3
         Nd = np.empty((6, 6))
         rhs = np.empty((6, 1))
@@ -301,7 +306,7 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
                 break
             cost_t, band_t = _normal_equations(trial, lo, hi, values, s, basis, far,
                                                module_px, outer, quiet_px, box_a, box_b,
-                                               quad, Nt, gt)
+                                               quad, Nt, gt, sat)
             if cost_t < cost:
                 for a in range(6):
                     p[a] = trial[a]
@@ -338,7 +343,8 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
                    outer: np.ndarray | None = None, quiet_px: np.ndarray | None = None,
                    samples_per_px: float = 1.0, iterations: int = 4,
                    blur0: np.ndarray | None = None, tol_px: float = 0.0,
-                   sides: np.ndarray | None = None, cost_out: np.ndarray | None = None
+                   sides: np.ndarray | None = None, cost_out: np.ndarray | None = None,
+                   censor_at: float | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fit the blurred-step model (module docstring) to every side.
 
@@ -372,6 +378,9 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
         cost_out: optional (S,) filled with each fitted side's sum of squared residuals
             across the edge's transition (see :func:`_normal_equations`), relative to
             its squared contrast ``D ** 2``.
+        censor_at: optional saturation level (linear): samples at or above it are
+            censored (they count only where the model predicts less light), for
+            over-exposed frames whose paper clips.
 
     Returns:
         coef (S, 3) edge polynomial, cov (S, 3, 3) its covariance, blur (S,) pixels
@@ -391,7 +400,8 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
             np.ascontiguousarray(fit_order, np.intp), np.ascontiguousarray(normal, f64),
             none if outer is None else np.ascontiguousarray(outer, f64),
             none if quiet_px is None else np.ascontiguousarray(quiet_px, f64),
-            max(samples_per_px, 1.0), int(iterations), blur.copy(), float(tol_px))
+            max(samples_per_px, 1.0), int(iterations), blur.copy(), float(tol_px),
+            1e30 if censor_at is None else float(censor_at))
     # sides in runs of about equal sample counts, on the worker threads
     costs = np.zeros(n_sides) if cost_out is None else cost_out
     in_run = split_even(which, starts[which + 1] - starts[which])
