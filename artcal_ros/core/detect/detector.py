@@ -108,6 +108,9 @@ class DetectorConfig:
         edge_shift: measure each view's edge shift from its markers' size against
             their pitch and remove it from the corners
             (:mod:`~artcal_ros.core.detect.edge_shift`).
+        censor_clipped: in an over-exposed frame whose ink is still below half of
+            saturation, fit the edges with the saturated pixels as censored data (they
+            only say the light there reached full scale); see docs/tone.md.
     """
 
     gamma: float = 0.0
@@ -125,6 +128,7 @@ class DetectorConfig:
     min_side_px: float = 6.0
     adaptive_window_max: int = 33
     edge_shift: bool = True
+    censor_clipped: bool = True
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any]) -> DetectorConfig:
@@ -350,7 +354,8 @@ class Detector:
         # censoring the saturated samples makes a clipped edge's fit consistent while its
         # transition still shows; once the ink itself nears saturation only a sliver
         # of it does, and the edge of the clipped plateau is the steadier measure
-        censor = clipped and dark_level(lin, quads, bits) < _CENSOR_BELOW
+        censor = (self.config.censor_clipped and clipped
+                  and dark_level(lin, quads, bits) < _CENSOR_BELOW)
         lens: Lens | None = (
             known_lens(camera) if camera is not None else None)
         fit_lens: Lens | None = None
