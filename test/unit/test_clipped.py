@@ -117,3 +117,26 @@ def test_censored_step_fit_finds_clipped_edge(angle_deg: float) -> None:
     plain = fit_step_model(values, **common)[0][0, 0]
     assert censored == pytest.approx(true_e, abs=0.05)
     assert plain < true_e - 0.3
+
+
+def test_held_blur_and_contrast_place_a_lone_clipped_edge() -> None:
+    """A clipped edge with nothing behind it shows only its transition's dark tail; held
+    at its marker's blur and contrast (here the true ones), the censored fit finds it."""
+    rng = np.random.default_rng(5205)
+    true_e, sigma, A, D = -0.31, 0.7, 0.04, 5.0
+    tau = np.repeat(np.linspace(-1.0, 1.0, 30), 9)
+    s = np.tile(np.arange(-4.0, 5.0), 30) + rng.uniform(-0.5, 0.5, tau.size)
+    light = np.array([A + D * pixel_esf(x - true_e, sigma, 0.95, 0.31)[0] for x in s])
+    values = np.minimum(light + rng.normal(0.0, 0.004, s.size), 1.0)
+    values[light >= 1.0] = 1.0
+    basis = np.stack([np.ones_like(tau), tau, tau ** 2 - 1.0 / 3.0], axis=1)
+    common = dict(s=s, side=np.zeros(s.size, np.intp), n_sides=1, basis=basis,
+                  coef0=np.zeros((1, 3)), far=np.zeros((s.size, 1)),
+                  module_px=np.full(s.size, 50.0), fit_order=np.array([2]),
+                  normal=np.array([[0.95, 0.31]]), iterations=30, censor_at=0.999)
+    contrast = np.zeros(1)
+    coef, _, blur = fit_step_model(values, hold_blur=np.array([sigma]),
+                                   hold_contrast=np.array([D]), contrast_out=contrast,
+                                   **common)
+    assert coef[0, 0] == pytest.approx(true_e, abs=0.03)
+    assert blur[0] == pytest.approx(sigma) and contrast[0] == pytest.approx(D)

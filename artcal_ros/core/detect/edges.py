@@ -345,7 +345,11 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
             few = np.flatnonzero(used > 0)[::_PILOT_EVERY]
             pilot = fit(blur0=np.full(S, 0.6), iterations=_PILOT_STEPS, sides=few)[2]
             fit_blur = np.full(S, float(np.median(pilot[few])) if len(few) else 0.6)
-        coef, cov, fit_blur = fit(blur0=fit_blur, iterations=_FIT_STEPS)
+        contrast = np.zeros(S)
+        coef, cov, fit_blur = fit(blur0=fit_blur, iterations=_FIT_STEPS, contrast_out=contrast)
+        if censor_at is not None and rows:
+            coef, cov, fit_blur = _refit_lone_edges(fit, coef, cov, fit_blur, contrast,
+                                                    np.asarray(inner_same, bool), used)
         if tone_probe is not None:
             few = np.flatnonzero(used > 0)[::_PILOT_EVERY]
             if len(few):
@@ -356,6 +360,56 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         model.count = used
     assert fit_blur is not None  # passes >= 1
     return fit_blur
+
+
+# a censored side with less than this share of the other colour behind its border has
+# one clipped transition only (see _refit_lone_edges)
+_LONE_EDGE_SHARE = 0.3
+
+
+def _refit_lone_edges(fit: Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]],
+                      coef: np.ndarray, cov: np.ndarray, blur: np.ndarray,
+                      contrast: np.ndarray, inner_same: np.ndarray, used: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Censored sides whose border has (almost) only its own colour behind it, fitted again
+    with the blur and contrast of their marker's other sides.
+
+    With the paper clipped, such a side shows only the unclipped tail of one transition,
+    which cannot separate its position from its blur and its (hidden) contrast; a side
+    with the other colour behind its border has a second transition one module further
+    in, with the same blur and contrast, and pins both down. The marker's sides share
+    the paper, the light and the optics.
+
+    Args:
+        fit: the pass's fit (``fit(**kw)``, see :func:`_model_passes`).
+        coef, cov, blur, contrast: (S, 3), (S, 3, 3), (S,), (S,) the censored fit.
+        inner_same: (M, 4, rows, bits) bool, see :func:`refine_quads`.
+        used: (S,) samples each side had.
+
+    Returns:
+        coef, cov, blur with the lone sides re-fitted.
+    """
+    M = inner_same.shape[0]
+    other = (~inner_same[:, :, 0, :]).mean(axis=2)          # (M, 4)
+    lone = (other < _LONE_EDGE_SHARE) & (used.reshape(M, 4) > 0)
+    paired = ~lone & (used.reshape(M, 4) > 0)
+    has = paired.any(axis=1) & lone.any(axis=1)
+    if not has.any():
+        return coef, cov, blur
+    b4, c4 = blur.reshape(M, 4), contrast.reshape(M, 4)
+    with np.errstate(all="ignore"):
+        w_m = np.nanmedian(np.where(paired, b4, np.nan)[has], axis=1)
+        d_m = np.nanmedian(np.where(paired, c4, np.nan)[has], axis=1)
+    hold_w = np.zeros((M, 4))
+    hold_d = np.full((M, 4), np.nan)
+    hold_w[has] = np.where(lone[has], w_m[:, None], 0.0)
+    hold_d[has] = np.where(lone[has], d_m[:, None], np.nan)
+    sides = np.flatnonzero((lone & has[:, None]).ravel())
+    c2, v2, b2 = fit(coef0=coef, blur0=blur, iterations=_FIT_STEPS, sides=sides,
+                     hold_blur=hold_w.ravel(), hold_contrast=hold_d.ravel())
+    coef, cov, blur = coef.copy(), cov.copy(), blur.copy()
+    coef[sides], cov[sides], blur[sides] = c2[sides], v2[sides], b2[sides]
+    return coef, cov, blur
 
 
 # the step model's per-sample inputs (the others are per side)

@@ -245,12 +245,14 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
                coef0: np.ndarray, far: np.ndarray, module_px: np.ndarray,
                fit_order: np.ndarray, normal: np.ndarray, outer: np.ndarray,
                quiet_px: np.ndarray, cov_scale: float, iterations: int, blur0: np.ndarray,
-               tol_px: float, sat: float, which: np.ndarray, coef: np.ndarray,
-               cov: np.ndarray, blur: np.ndarray, cost_out: np.ndarray) -> None:
+               tol_px: float, sat: float, hold_w: np.ndarray, hold_D: np.ndarray,
+               which: np.ndarray, coef: np.ndarray, cov: np.ndarray, blur: np.ndarray,
+               cost_out: np.ndarray, contrast: np.ndarray) -> None:
     """Damped Gauss-Newton fit of the sides ``which``; see :func:`fit_step_model`.
 
-    Writes rows ``which`` of coef (S, 3), cov (S, 3, 3), blur (S,) and cost_out (S,)
-    (and nothing else, so threads can share them).
+    Writes rows ``which`` of coef (S, 3), cov (S, 3, 3), blur (S,), cost_out (S,) and
+    contrast (S,) (and nothing else, so threads can share them). A side with
+    ``hold_w[k] > 0`` keeps that blur, one with a finite ``hold_D[k]`` that contrast.
     """
     for k in which:
         lo, hi = starts[k], starts[k + 1]
@@ -266,6 +268,12 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
         p[3] = A
         p[4] = B - A
         p[5] = math.log(max(blur0[k], 0.03))
+        free_w = hold_w[k] <= 0.0
+        free_D = not np.isfinite(hold_D[k])
+        if not free_w:
+            p[5] = math.log(max(hold_w[k], 0.03))
+        if not free_D:
+            p[4] = hold_D[k]
         N = np.empty((6, 6))
         g = np.empty(6)
         Nt = np.empty((6, 6))
@@ -296,7 +304,9 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
                 if j < 2:
                     st = min(max(st, -1.0), 1.0)
                 elif j == 5:
-                    st = min(max(st, -0.5), 0.5)
+                    st = min(max(st, -0.5), 0.5) if free_w else 0.0
+                elif j == 4 and not free_D:
+                    st = 0.0
                 if j < 3:
                     moved += abs(st)
                 trial[j] = p[j] + st
@@ -334,6 +344,7 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
         for j in range(3):
             coef[k, j] = p[j]
         blur[k] = math.exp(p[5])
+        contrast[k] = p[4]
         cost_out[k] = band_cost / max(p[4] * p[4], 1e-12)
 
 
@@ -344,7 +355,9 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
                    samples_per_px: float = 1.0, iterations: int = 4,
                    blur0: np.ndarray | None = None, tol_px: float = 0.0,
                    sides: np.ndarray | None = None, cost_out: np.ndarray | None = None,
-                   censor_at: float | None = None
+                   censor_at: float | None = None, hold_blur: np.ndarray | None = None,
+                   hold_contrast: np.ndarray | None = None,
+                   contrast_out: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fit the blurred-step model (module docstring) to every side.
 
@@ -381,6 +394,9 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
         censor_at: optional saturation level (linear): samples at or above it are
             censored (they count only where the model predicts less light), for
             over-exposed frames whose paper clips.
+        hold_blur: optional (S,) blur to hold a side at, pixels (0: fitted).
+        hold_contrast: optional (S,) contrast ``D`` to hold a side at (NaN: fitted).
+        contrast_out: optional (S,) filled with each fitted side's contrast ``D``.
 
     Returns:
         coef (S, 3) edge polynomial, cov (S, 3, 3) its covariance, blur (S,) pixels
@@ -401,11 +417,15 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
             none if outer is None else np.ascontiguousarray(outer, f64),
             none if quiet_px is None else np.ascontiguousarray(quiet_px, f64),
             max(samples_per_px, 1.0), int(iterations), blur.copy(), float(tol_px),
-            1e30 if censor_at is None else float(censor_at))
+            1e30 if censor_at is None else float(censor_at),
+            np.zeros(n_sides) if hold_blur is None else np.ascontiguousarray(hold_blur, f64),
+            np.full(n_sides, np.nan) if hold_contrast is None
+            else np.ascontiguousarray(hold_contrast, f64))
     # sides in runs of about equal sample counts, on the worker threads
     costs = np.zeros(n_sides) if cost_out is None else cost_out
     in_run = split_even(which, starts[which + 1] - starts[which])
-    run_all(lambda part: _fit_sides(*args, part, coef, cov, blur, costs), in_run)
+    contrast = np.zeros(n_sides) if contrast_out is None else contrast_out
+    run_all(lambda part: _fit_sides(*args, part, coef, cov, blur, costs, contrast), in_run)
     return coef, cov, blur
 
 
