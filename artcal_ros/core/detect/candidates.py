@@ -20,7 +20,8 @@ from artcal_ros.core.detect.edges import refine_quads, same_edges
 from artcal_ros.core.detect.sampling import border_is_dark, ring_median, ring_points
 from artcal_ros.core.homography import module_homographies, shortest_sides
 
-# share of saturated pixels above which a frame gets the bright-end pass
+# share of pixels at the frame's maximum from which it counts as clipped (an ordinary
+# frame has a few specular or white-wall pixels there, not a sixth of the picture)
 CLIPPED_SHARE = 0.15
 
 
@@ -32,6 +33,7 @@ def is_clipped(gray8: np.ndarray) -> bool:
     """
     top = int(gray8.max())
     sub = gray8[::2, ::2]
+    # (a dark frame's maximum is not saturation, however many pixels share it)
     return top >= 200 and np.count_nonzero(sub >= top) >= CLIPPED_SHARE * sub.size
 
 
