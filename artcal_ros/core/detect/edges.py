@@ -348,8 +348,11 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         contrast = np.zeros(S)
         coef, cov, fit_blur = fit(blur0=fit_blur, iterations=_FIT_STEPS, contrast_out=contrast)
         if censor_at is not None and rows:
+            # (only sides that are clipped: a frame may be clipped away from the board)
+            clipped = np.bincount(sid, weights=values >= censor_at, minlength=S) >= 3
             coef, cov, fit_blur = _refit_lone_edges(fit, coef, cov, fit_blur, contrast,
-                                                    np.asarray(inner_same, bool), used)
+                                                    np.asarray(inner_same, bool),
+                                                    used * clipped)
         if tone_probe is not None:
             few = np.flatnonzero(used > 0)[::_PILOT_EVERY]
             if len(few):
@@ -384,7 +387,7 @@ def _refit_lone_edges(fit: Callable[..., tuple[np.ndarray, np.ndarray, np.ndarra
         fit: the pass's fit (``fit(**kw)``, see :func:`_model_passes`).
         coef, cov, blur, contrast: (S, 3), (S, 3, 3), (S,), (S,) the censored fit.
         inner_same: (M, 4, rows, bits) bool, see :func:`refine_quads`.
-        used: (S,) samples each side had.
+        used: (S,) samples each side had (0: the side takes no part).
 
     Returns:
         coef, cov, blur with the lone sides re-fitted.
