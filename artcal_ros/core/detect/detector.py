@@ -108,7 +108,7 @@ class DetectorConfig:
         edge_shift: measure each view's edge shift from its markers' size against
             their pitch and remove it from the corners
             (:mod:`~artcal_ros.core.detect.edge_shift`).
-        censor_clipped: in an over-exposed frame whose ink is still below 0.6 of
+        censor_clipped: in an over-exposed frame whose ink is still below 0.85 of
             saturation, fit the edges with the saturated pixels as censored data (they
             only say the light there reached full scale); see docs/tone.md.
     """
@@ -146,11 +146,11 @@ class DetectorConfig:
 
 
 # a clipped frame's saturated samples are censored in the edge fit while its ink is
-# darker than this share of saturation (the paper then up to about 10 times over, for a
-# print of ordinary contrast). On the exposure sweep (bench.exposure) censoring halves
-# the centres' error where the ink reads 0.1 - 0.4, still helps at 0.5 - 0.6 and
-# doubles it at 0.8, where only a sliver of each edge's transition is left unclipped
-_CENSOR_BELOW = 0.6
+# darker than this share of saturation (the paper then up to about 14 times over, for a
+# print of ordinary contrast). Set on the exposure sweep (bench.exposure): censoring
+# halves the centres' error or better where the ink reads 0.1 - 0.84, and makes it
+# worse at 0.9 - 0.93, where only a sliver of each edge's transition is left unclipped
+_CENSOR_BELOW = 0.85
 
 # most pilot sides a frame's tone probe re-fits per candidate curve
 _PROBE_SIDES = 16

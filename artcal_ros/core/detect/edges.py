@@ -365,23 +365,28 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
     return fit_blur
 
 
-# a censored side with less than this share of the other colour behind its border has
-# one clipped transition only (see _refit_lone_edges)
-_LONE_EDGE_SHARE = 0.3
+# censored sides with less than the first or more than the second share of the other
+# colour behind their border are held at their marker's other sides' blur and contrast
+# (see _refit_lone_edges)
+_HELD_BELOW, _HELD_ABOVE = 0.3, 0.6
 
 
 def _refit_lone_edges(fit: Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]],
                       coef: np.ndarray, cov: np.ndarray, blur: np.ndarray,
                       contrast: np.ndarray, inner_same: np.ndarray, used: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Censored sides whose border has (almost) only its own colour behind it, fitted again
-    with the blur and contrast of their marker's other sides.
+    """Censored sides that cannot pin down their own blur and contrast, fitted again
+    holding those of their marker's other sides.
 
-    With the paper clipped, such a side shows only the unclipped tail of one transition,
-    which cannot separate its position from its blur and its (hidden) contrast; a side
-    with the other colour behind its border has a second transition one module further
-    in, with the same blur and contrast, and pins both down. The marker's sides share
-    the paper, the light and the optics.
+    With the paper clipped, a side sees the unclipped tails of its transitions only. A
+    side with about as many code cells of the other colour behind its border as of its
+    own shows two: the border's edge and, one module further in, the code cells' edge,
+    with the same blur and contrast, which pins both down. One with (almost) only its
+    own colour behind shows one tail, which cannot separate its position from its blur
+    and hidden contrast; one with (almost) only the other colour has its border eaten
+    from both sides, and its dark core no longer reaches the ink. The marker's sides
+    share the paper, the light and the optics: those sides take the median blur and
+    contrast of the marker's well-placed sides, or of the frame's when it has none.
 
     Args:
         fit: the pass's fit (``fit(**kw)``, see :func:`_model_passes`).
@@ -390,24 +395,28 @@ def _refit_lone_edges(fit: Callable[..., tuple[np.ndarray, np.ndarray, np.ndarra
         used: (S,) samples each side had (0: the side takes no part).
 
     Returns:
-        coef, cov, blur with the lone sides re-fitted.
+        coef, cov, blur with those sides fitted again.
     """
     M = inner_same.shape[0]
     other = (~inner_same[:, :, 0, :]).mean(axis=2)          # (M, 4)
-    lone = (other < _LONE_EDGE_SHARE) & (used.reshape(M, 4) > 0)
-    paired = ~lone & (used.reshape(M, 4) > 0)
-    has = paired.any(axis=1) & lone.any(axis=1)
-    if not has.any():
+    part = used.reshape(M, 4) > 0
+    held = part & ((other < _HELD_BELOW) | (other > _HELD_ABOVE))
+    donor = part & ~held
+    if not (held.any() and donor.any()):
         return coef, cov, blur
     b4, c4 = blur.reshape(M, 4), contrast.reshape(M, 4)
+    # contrast by magnitude: a white-bordered marker's is negative
     with np.errstate(all="ignore"):
-        w_m = np.nanmedian(np.where(paired, b4, np.nan)[has], axis=1)
-        d_m = np.nanmedian(np.where(paired, c4, np.nan)[has], axis=1)
-    hold_w = np.zeros((M, 4))
-    hold_d = np.full((M, 4), np.nan)
-    hold_w[has] = np.where(lone[has], w_m[:, None], 0.0)
-    hold_d[has] = np.where(lone[has], d_m[:, None], np.nan)
-    sides = np.flatnonzero((lone & has[:, None]).ravel())
+        w_m = np.nanmedian(np.where(donor, b4, np.nan), axis=1)
+        d_m = np.nanmedian(np.where(donor, np.abs(c4), np.nan), axis=1)
+    alone = ~donor.any(axis=1)
+    w_m[alone] = np.median(b4[donor])
+    d_m[alone] = np.median(np.abs(c4[donor]))
+    hold_w = np.where(held, w_m[:, None], 0.0)
+    # (the sign by the marker's majority: a side's own fit may have flipped it)
+    sign = np.where(np.median(np.where(part, c4, 0.0), axis=1) < 0, -1.0, 1.0)
+    hold_d = np.where(held, (sign * d_m)[:, None], np.nan)
+    sides = np.flatnonzero(held.ravel())
     c2, v2, b2 = fit(coef0=coef, blur0=blur, iterations=_FIT_STEPS, sides=sides,
                      hold_blur=hold_w.ravel(), hold_contrast=hold_d.ravel())
     coef, cov, blur = coef.copy(), cov.copy(), blur.copy()
