@@ -406,15 +406,14 @@ def _refit_lone_edges(fit: Callable[..., tuple[np.ndarray, np.ndarray, np.ndarra
         return coef, cov, blur
     b4, c4 = blur.reshape(M, 4), contrast.reshape(M, 4)
     # contrast by magnitude: a white-bordered marker's is negative
-    with np.errstate(all="ignore"):
-        w_m = np.nanmedian(np.where(donor, b4, np.nan), axis=1)
-        d_m = np.nanmedian(np.where(donor, np.abs(c4), np.nan), axis=1)
-    alone = ~donor.any(axis=1)
-    w_m[alone] = np.median(b4[donor])
-    d_m[alone] = np.median(np.abs(c4[donor]))
+    w_m = np.full(M, np.median(b4[donor]))
+    d_m = np.full(M, np.median(np.abs(c4[donor])))
+    own = donor.any(axis=1)
+    w_m[own] = np.nanmedian(np.where(donor, b4, np.nan)[own], axis=1)
+    d_m[own] = np.nanmedian(np.where(donor, np.abs(c4), np.nan)[own], axis=1)
     hold_w = np.where(held, w_m[:, None], 0.0)
     # (the sign by the marker's majority: a side's own fit may have flipped it)
-    sign = np.where(np.median(np.where(part, c4, 0.0), axis=1) < 0, -1.0, 1.0)
+    sign = np.where(np.where(part, np.sign(c4), 0.0).sum(axis=1) < 0, -1.0, 1.0)
     hold_d = np.where(held, (sign * d_m)[:, None], np.nan)
     sides = np.flatnonzero(held.ravel())
     c2, v2, b2 = fit(coef0=coef, blur0=blur, iterations=_FIT_STEPS, sides=sides,
