@@ -137,8 +137,9 @@ def table(steps: list[Step]) -> str:
              "|---|---|---|---|---|---|---|---|---|---|---|"]
     for i, s in enumerate(steps):
         diff = s.rms("corners") - s.rms("centres")
+        saturated = f"{100 * np.mean(s.saturated):.0f}" if s.saturated else ""
         lines.append(
-            f"| {i + 1} | {s.exposure:.3g} | {100 * np.mean(s.saturated):.0f} | {s.decoded} | "
+            f"| {i + 1} | {s.exposure:.3g} | {saturated} | {s.decoded} | "
             f"{s.decoded_cv} | {s.rms('centres'):.4f} | {s.rms('raw corners'):.4f} | "
             f"{s.rms('corners'):.4f} | {diff:+.4f} | {s.rms('opencv centres'):.4f} | "
             f"{s.rms('opencv corners'):.4f} |")
