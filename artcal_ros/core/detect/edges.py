@@ -365,9 +365,8 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
     return fit_blur
 
 
-# censored sides with less than the first or more than the second share of the other
-# colour behind their border are held at their marker's other sides' blur and contrast
-# (see _refit_lone_edges)
+# sides with between these shares of the other colour behind their border show their
+# blur and contrast (see _refit_lone_edges)
 _HELD_BELOW, _HELD_ABOVE = 0.3, 0.6
 
 
@@ -375,8 +374,7 @@ def _refit_lone_edges(fit: Callable[..., tuple[np.ndarray, np.ndarray, np.ndarra
                       coef: np.ndarray, cov: np.ndarray, blur: np.ndarray,
                       contrast: np.ndarray, inner_same: np.ndarray, used: np.ndarray
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Censored sides that cannot pin down their own blur and contrast, fitted again
-    holding those of their marker's other sides.
+    """Clipped sides fitted again with the blur and contrast the well-placed ones show.
 
     With the paper clipped, a side sees the unclipped tails of its transitions only. A
     side with about as many code cells of the other colour behind its border as of its
@@ -384,9 +382,11 @@ def _refit_lone_edges(fit: Callable[..., tuple[np.ndarray, np.ndarray, np.ndarra
     with the same blur and contrast, which pins both down. One with (almost) only its
     own colour behind shows one tail, which cannot separate its position from its blur
     and hidden contrast; one with (almost) only the other colour has its border eaten
-    from both sides, and its dark core no longer reaches the ink. The marker's sides
-    share the paper, the light and the optics: those sides take the median blur and
-    contrast of the marker's well-placed sides, or of the frame's when it has none.
+    from both sides, and its dark core no longer reaches the ink. So every clipped side
+    is fitted again holding the blur at the median of the frame's two-transition sides
+    (one lens, one focus) and the contrast at the median of its marker's (one paper, one
+    light; the frame's when the marker has none): only its position and dark level are
+    left free, and the four sides of a marker are placed alike.
 
     Args:
         fit: the pass's fit (``fit(**kw)``, see :func:`_model_passes`).
@@ -402,20 +402,18 @@ def _refit_lone_edges(fit: Callable[..., tuple[np.ndarray, np.ndarray, np.ndarra
     part = used.reshape(M, 4) > 0
     held = part & ((other < _HELD_BELOW) | (other > _HELD_ABOVE))
     donor = part & ~held
-    if not (held.any() and donor.any()):
+    if not donor.any():
         return coef, cov, blur
     b4, c4 = blur.reshape(M, 4), contrast.reshape(M, 4)
     # contrast by magnitude: a white-bordered marker's is negative
-    w_m = np.full(M, np.median(b4[donor]))
     d_m = np.full(M, np.median(np.abs(c4[donor])))
     own = donor.any(axis=1)
-    w_m[own] = np.nanmedian(np.where(donor, b4, np.nan)[own], axis=1)
     d_m[own] = np.nanmedian(np.where(donor, np.abs(c4), np.nan)[own], axis=1)
-    hold_w = np.where(held, w_m[:, None], 0.0)
     # (the sign by the marker's majority: a side's own fit may have flipped it)
     sign = np.where(np.where(part, np.sign(c4), 0.0).sum(axis=1) < 0, -1.0, 1.0)
-    hold_d = np.where(held, (sign * d_m)[:, None], np.nan)
-    sides = np.flatnonzero(held.ravel())
+    hold_w = np.where(part, np.median(b4[donor]), 0.0)
+    hold_d = np.where(part, (sign * d_m)[:, None], np.nan)
+    sides = np.flatnonzero(part.ravel())
     c2, v2, b2 = fit(coef0=coef, blur0=blur, iterations=_FIT_STEPS, sides=sides,
                      hold_blur=hold_w.ravel(), hold_contrast=hold_d.ravel())
     coef, cov, blur = coef.copy(), cov.copy(), blur.copy()
