@@ -22,6 +22,7 @@ def main(argv: list[str] | None = None) -> int:
     quick = ["--quick"] if args.quick else []
     steps = [
         ("detection", ["bench.detection", *quick]),
+        ("exposure sweep", ["bench.exposure", *quick]),
         ("other boards", ["bench.boards", *quick]),
         ("speed", ["bench.speed", *quick]),
         ("calibration", ["bench.calibration", *quick]),

@@ -17,8 +17,72 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect.decode import PatternTable, decode_quads
 from artcal_ros.core.detect.edges import refine_quads, same_edges
-from artcal_ros.core.detect.sampling import border_is_dark
-from artcal_ros.core.homography import shortest_sides
+from artcal_ros.core.detect.sampling import border_is_dark, ring_median, ring_points
+from artcal_ros.core.homography import module_homographies, shortest_sides
+
+# share of pixels at the frame's maximum from which it counts as clipped (an ordinary
+# frame has a few specular or white-wall pixels there, not a sixth of the picture)
+CLIPPED_SHARE = 0.15
+
+
+def is_clipped(gray8: np.ndarray) -> bool:
+    """At least :data:`CLIPPED_SHARE` of the frame at its (bright) maximum: over-exposed.
+
+    Args:
+        gray8: (H, W) uint8 image for the quad finder.
+    """
+    top = int(gray8.max())
+    sub = gray8[::2, ::2]
+    # (a dark frame's maximum is not saturation, however many pixels share it)
+    return top >= 200 and np.count_nonzero(sub >= top) >= CLIPPED_SHARE * sub.size
+
+
+def dark_level(lin: np.ndarray, quads: np.ndarray, bits: int) -> float:
+    """Median over the quads of the darker of their border and the ring just outside it.
+
+    In a clipped frame that is the ink's level against saturation (1.0): how far over
+    the paper is exposed, for a print of ordinary contrast.
+
+    Args:
+        lin: (H, W) linear intensity image (saturation at 1).
+        quads: (M, 4, 2) marker corners, pixels.
+        bits: code cells per marker side.
+
+    Returns:
+        the level (linear), NaN without quads.
+    """
+    if len(quads) == 0:
+        return float("nan")
+    n = bits + 2.0
+    H = module_homographies(quads, bits)
+    s = np.linspace(1.0, n - 1.0, 2 * (bits + 2))
+    inside = ring_median(lin, H, ring_points(s, 0.5, n - 0.5))
+    outside = ring_median(lin, H, ring_points(s, -0.5, n + 0.5))
+    return float(np.median(np.minimum(inside, outside)))
+
+
+def saturation_image(gray8: np.ndarray) -> np.ndarray | None:
+    """A clipped frame as the quad finder should see it (None: the frame is not clipped).
+
+    Once the paper clips, the ink is only a few grey levels below full scale (less than
+    the finder's adaptive-threshold margin) and the white eats into every black module
+    from both sides, breaking thin borders. What is left of the print is exactly what is
+    not saturated: the image is that mask (255 saturated, 0 not), with the dark grown by
+    a pixel (a 3 x 3 erosion) to close the gaps blooming leaves in a border. The quad
+    then runs about a pixel outside the eaten border, near the printed one; the edge fit
+    places the sides on the image itself.
+
+    Args:
+        gray8: (H, W) uint8 image for the quad finder.
+
+    Returns:
+        (H, W) uint8, or None when the frame is not clipped (:func:`is_clipped`).
+    """
+    if not is_clipped(gray8):
+        return None
+    top = int(gray8.max())
+    mask = np.where(gray8 >= top, np.uint8(255), np.uint8(0))
+    return np.asarray(cv2.erode(mask, np.ones((3, 3), np.uint8)))
 
 
 def _aruco_detector(board: Board, adaptive_window_max: int) -> cv2.aruco.ArucoDetector:
@@ -57,6 +121,8 @@ class CandidateFinder:
         self.min_side_px = min_side_px
         self._aruco = _aruco_detector(board, adaptive_window_max)
         self._patterns = PatternTable(board, any_polarity=board.polarity == "any")
+        self._clipped_patterns = PatternTable(board, any_polarity=board.polarity == "any",
+                                              clipped=True)
 
     def find(self, gray8: np.ndarray, lin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """Quads (N, 4, 2) in board corner order and ids (N,) that belong to the board.
@@ -65,6 +131,27 @@ class CandidateFinder:
             gray8: (H, W) uint8 image for the quad finder.
             lin: (H, W) float32 linear intensity of the same image.
         """
+        quads, ids = self._pass(gray8, lin)
+        bright = saturation_image(gray8)
+        if bright is not None:
+            # only ids the first pass lacks: the same marker read twice would be dropped
+            # below as an id seen twice
+            bq, bids = self._pass(bright, lin, self._clipped_patterns)
+            new = ~np.isin(bids, ids)
+            quads = np.concatenate([quads, bq[new]])
+            ids = np.concatenate([ids, bids[new]])
+        # an id seen twice is at least once wrong, and which one cannot be told here
+        uniq, counts = np.unique(ids, return_counts=True)
+        single = np.isin(ids, uniq[counts == 1])
+        quads, ids = quads[single], ids[single]
+        big = shortest_sides(quads) >= self.min_side_px
+        return quads[big], ids[big]
+
+    def _pass(self, gray8: np.ndarray, lin: np.ndarray, patterns: PatternTable | None = None
+              ) -> tuple[np.ndarray, np.ndarray]:
+        """One pass of the quad finder: quads (N, 4, 2) and ids (N,) on the board (an id
+        may repeat), OpenCV's reads first, then its rejected quads decoded here against
+        ``patterns`` (default: the board's, unclipped)."""
         corners, ids_cv, rejected = self._aruco.detectMarkers(gray8)
         if ids_cv is None or len(ids_cv) == 0:
             quads: np.ndarray = np.zeros((0, 4, 2))
@@ -75,27 +162,24 @@ class CandidateFinder:
         on_board = (ids >= self.board.first_id) & (ids <= int(self.board.ids[-1]))
         quads, ids = quads[on_board], ids[on_board]
         if self.decode_rejected and rejected is not None and len(rejected):
-            dq, dids = self._decode_rejected(lin, rejected)
+            dq, dids = self._decode_rejected(lin, rejected, patterns or self._patterns)
             new = ~np.isin(dids, ids)
             quads = np.concatenate([quads, dq[new]])
             ids = np.concatenate([ids, dids[new]])
-        # an id seen twice is at least once wrong, and which one cannot be told here
-        uniq, counts = np.unique(ids, return_counts=True)
-        single = np.isin(ids, uniq[counts == 1])
-        quads, ids = quads[single], ids[single]
-        big = shortest_sides(quads) >= self.min_side_px
-        return quads[big], ids[big]
+        return quads, ids
 
-    def _decode_rejected(self, lin: np.ndarray, rejected: Any) -> tuple[np.ndarray, np.ndarray]:
+    def _decode_rejected(self, lin: np.ndarray, rejected: Any, patterns: PatternTable
+                         ) -> tuple[np.ndarray, np.ndarray]:
         """Quads (D, 4, 2) in board corner order and ids (D,) read from OpenCV's rejected quads.
 
         Args:
             lin: (H, W) float32 linear intensity image.
             rejected: OpenCV's rejected candidates (a sequence of (1, 4, 2) arrays).
+            patterns: what the quads are matched against.
         """
         found = np.asarray(rejected, dtype=np.float64).reshape(-1, 4, 2)
         rq = found[shortest_sides(found) >= self.min_side_px]
-        dq, dids, taken, err = decode_quads(lin, rq, self._patterns)
+        dq, dids, taken, err = decode_quads(lin, rq, patterns)
         # near misses: re-read on quads refined from their edges (the quad finder's
         # corners misplace the code cells of small or blurred markers)
         near = (err > 2) & (err <= 10)
@@ -105,7 +189,7 @@ class CandidateFinder:
             dark = border_is_dark(lin, nq, self.board.bits)
             fit = refine_quads(lin, nq, dark, self.board.bits, allow_curvature=False, passes=1)
             good = fit.ok & same_edges(fit.corners_px, nq)
-            rq2, rids2, _, _ = decode_quads(lin, fit.corners_px[good], self._patterns,
+            rq2, rids2, _, _ = decode_quads(lin, fit.corners_px[good], patterns,
                                             grow_px=0.0)
             dq = np.concatenate([dq, rq2])
             dids = np.concatenate([dids, rids2])

@@ -18,7 +18,7 @@ from functools import lru_cache
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.detect.patterns import blurred_patterns
+from artcal_ros.core.detect.patterns import blurred_patterns, clipped_patterns
 from artcal_ros.core.detect.sampling import (
     border_is_dark,
     cell_means,
@@ -38,14 +38,17 @@ class PatternTable:
         board: the calibration board.
         any_polarity: also match the inverted pattern of every marker
             (``board.polarity == "any"``).
+        clipped: also match the patterns as an over-exposed sensor sees them
+            (:func:`~artcal_ros.core.detect.patterns.clipped_patterns`).
     """
 
-    def __init__(self, board: Board, any_polarity: bool) -> None:
-        self.ids, self.flat, self.unit, self.levels, self.n = _tables(board, any_polarity)
+    def __init__(self, board: Board, any_polarity: bool, *, clipped: bool = False) -> None:
+        self.ids, self.flat, self.unit, self.levels, self.n = _tables(board, any_polarity,
+                                                                      clipped)
 
 
-@lru_cache(maxsize=8)
-def _tables(board: Board, any_polarity: bool
+@lru_cache(maxsize=16)
+def _tables(board: Board, any_polarity: bool, clipped: bool = False
             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, int, int]:
     """A board's pattern tables, made once per board (read-only arrays).
 
@@ -61,6 +64,8 @@ def _tables(board: Board, any_polarity: bool
     flat = pats.reshape(len(pats), n * n).astype(np.float32)
     # blurred versions, centered and normalised for correlation: (N * L, n * n)
     blurred = blurred_patterns(pats)  # (N, L, n * n)
+    if clipped:
+        blurred = clipped_patterns(blurred)
     c = blurred - blurred.mean(axis=2, keepdims=True)
     c /= np.maximum(np.linalg.norm(c, axis=2, keepdims=True), 1e-9)
     unit = c.reshape(-1, n * n).astype(np.float32)

@@ -82,7 +82,8 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
                  quiet_modules: float = 1.0, outer_same: np.ndarray | None = None,
                  beyond_modules: float = 1.0, max_profiles: int = 40,
                  lens_pool: LensPool | None = None,
-                 tone_probe: Callable[..., None] | None = None) -> EdgeFit:
+                 tone_probe: Callable[..., None] | None = None,
+                 censor_at: float | None = None) -> EdgeFit:
     """Refine approximate quads to sub-pixel corners from their border edges.
 
     Args:
@@ -119,6 +120,8 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         tone_probe: optional ``tone_probe(probe_fit)``, called with a :class:`ProbeFit`
             after every pass's fit; the last call is the final fit's (see
             :func:`~artcal_ros.core.detect.tone.probe_costs`).
+        censor_at: optional saturation level of ``lin``: saturated samples are censored
+            in the model fit (see :func:`~artcal_ros.core.detect.step_model.fit_step_model`).
 
     Returns:
         the :class:`EdgeFit`.
@@ -160,7 +163,7 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
     fit_blur = _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same,
                              quiet_modules, passes, order, None, margin_px,
                              None if later else outer_same, beyond_modules,
-                             tone_probe=tone_probe)
+                             tone_probe=tone_probe, censor_at=censor_at)
     if later:
         used_lens = estimate_division(model, quads, t, present, lin.shape, pool=lens_pool)
     if used_lens is not None:
@@ -168,13 +171,14 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         model.coef[:, 2] = lens_bend(used_lens, a, u, n, length)
         _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same,
                       quiet_modules, 1, np.full(S, 2), used_lens, margin_px, outer_same,
-                      beyond_modules, fit_blur, tone_probe=tone_probe)
+                      beyond_modules, fit_blur, tone_probe=tone_probe, censor_at=censor_at)
     else:
         _drop_flat_parabolas(model)
         if later and outer_same is not None:
             _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same,
                           quiet_modules, 1, model.order, None, margin_px, outer_same,
-                          beyond_modules, fit_blur, tone_probe=tone_probe)
+                          beyond_modules, fit_blur, tone_probe=tone_probe,
+                          censor_at=censor_at)
     corners, sigma = intersect_sides(model, a, u, n, M)
     side_ok = model.count >= 4
     ok = side_ok.reshape(M, 4).all(axis=1) & np.isfinite(corners).all(axis=(1, 2))
@@ -255,7 +259,8 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
                   lens: Lens | None = None,
                   corner_clear: float = 1.5, outer_same: np.ndarray | None = None,
                   beyond_modules: float = 1.0, start_blur: np.ndarray | None = None,
-                  tone_probe: Callable[..., None] | None = None) -> np.ndarray:
+                  tone_probe: Callable[..., None] | None = None,
+                  censor_at: float | None = None) -> np.ndarray:
     """Blurred-step model fits (see :mod:`~artcal_ros.core.detect.step_model`); updates ``model``.
 
     ``fit_order`` (S,) says per side whether the parabola term is free (3) or held
@@ -277,7 +282,7 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         corner_clear: see above, pixels.
         start_blur: (S,) the blur the model fit starts from (an earlier pass's), pixels;
             without, the frame's blur from a pilot fit of every 8th side.
-        tone_probe: see :func:`refine_quads`.
+        tone_probe, censor_at: see :func:`refine_quads`.
 
     Returns:
         (S,) the fitted blur, pixels.
@@ -326,7 +331,7 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
             s=s_c, side=sid, n_sides=S, basis=basis, far=far, module_px=m_s,
             fit_order=fit_order, normal=n, tol_px=_FIT_TOL_PX,
             outer=None if known is None else known[sid].astype(np.float32),
-            quiet_px=None if known is None else quiet_modules * m_s)
+            quiet_px=None if known is None else quiet_modules * m_s, censor_at=censor_at)
 
         def fit(vals: np.ndarray = values, coef0: np.ndarray = model.coef,
                 common: dict[str, Any] = common,
@@ -340,7 +345,14 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
             few = np.flatnonzero(used > 0)[::_PILOT_EVERY]
             pilot = fit(blur0=np.full(S, 0.6), iterations=_PILOT_STEPS, sides=few)[2]
             fit_blur = np.full(S, float(np.median(pilot[few])) if len(few) else 0.6)
-        coef, cov, fit_blur = fit(blur0=fit_blur, iterations=_FIT_STEPS)
+        contrast = np.zeros(S)
+        coef, cov, fit_blur = fit(blur0=fit_blur, iterations=_FIT_STEPS, contrast_out=contrast)
+        if censor_at is not None and rows:
+            # (only sides that are clipped: a frame may be clipped away from the board)
+            clipped = np.bincount(sid, weights=values >= censor_at, minlength=S) >= 3
+            coef, cov, fit_blur = _refit_lone_edges(fit, coef, cov, fit_blur, contrast,
+                                                    np.asarray(inner_same, bool),
+                                                    used * clipped)
         if tone_probe is not None:
             few = np.flatnonzero(used > 0)[::_PILOT_EVERY]
             if len(few):
@@ -351,6 +363,62 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         model.count = used
     assert fit_blur is not None  # passes >= 1
     return fit_blur
+
+
+# sides with between these shares of the other colour behind their border show their
+# blur and contrast (see _refit_lone_edges)
+_HELD_BELOW, _HELD_ABOVE = 0.3, 0.6
+
+
+def _refit_lone_edges(fit: Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]],
+                      coef: np.ndarray, cov: np.ndarray, blur: np.ndarray,
+                      contrast: np.ndarray, inner_same: np.ndarray, used: np.ndarray
+                      ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Clipped sides fitted again with the blur and contrast the well-placed ones show.
+
+    With the paper clipped, a side sees the unclipped tails of its transitions only. A
+    side with about as many code cells of the other colour behind its border as of its
+    own shows two: the border's edge and, one module further in, the code cells' edge,
+    with the same blur and contrast, which pins both down. One with (almost) only its
+    own colour behind shows one tail, which cannot separate its position from its blur
+    and hidden contrast; one with (almost) only the other colour has its border eaten
+    from both sides, and its dark core no longer reaches the ink. So every clipped side
+    is fitted again holding the blur at the median of the frame's two-transition sides
+    (one lens, one focus) and the contrast at the median of its marker's (one paper, one
+    light; the frame's when the marker has none): only its position and dark level are
+    left free, and the four sides of a marker are placed alike.
+
+    Args:
+        fit: the pass's fit (``fit(**kw)``, see :func:`_model_passes`).
+        coef, cov, blur, contrast: (S, 3), (S, 3, 3), (S,), (S,) the censored fit.
+        inner_same: (M, 4, rows, bits) bool, see :func:`refine_quads`.
+        used: (S,) samples each side had (0: the side takes no part).
+
+    Returns:
+        coef, cov, blur with those sides fitted again.
+    """
+    M = inner_same.shape[0]
+    other = (~inner_same[:, :, 0, :]).mean(axis=2)          # (M, 4)
+    part = used.reshape(M, 4) > 0
+    held = part & ((other < _HELD_BELOW) | (other > _HELD_ABOVE))
+    donor = part & ~held
+    if not donor.any():
+        return coef, cov, blur
+    b4, c4 = blur.reshape(M, 4), contrast.reshape(M, 4)
+    # contrast by magnitude: a white-bordered marker's is negative
+    d_m = np.full(M, np.median(np.abs(c4[donor])))
+    own = donor.any(axis=1)
+    d_m[own] = np.nanmedian(np.where(donor, np.abs(c4), np.nan)[own], axis=1)
+    # (the sign by the marker's majority: a side's own fit may have flipped it)
+    sign = np.where(np.where(part, np.sign(c4), 0.0).sum(axis=1) < 0, -1.0, 1.0)
+    hold_w = np.where(part, np.median(b4[donor]), 0.0)
+    hold_d = np.where(part, (sign * d_m)[:, None], np.nan)
+    sides = np.flatnonzero(part.ravel())
+    c2, v2, b2 = fit(coef0=coef, blur0=blur, iterations=_FIT_STEPS, sides=sides,
+                     hold_blur=hold_w.ravel(), hold_contrast=hold_d.ravel())
+    coef, cov, blur = coef.copy(), cov.copy(), blur.copy()
+    coef[sides], cov[sides], blur[sides] = c2[sides], v2[sides], b2[sides]
+    return coef, cov, blur
 
 
 # the step model's per-sample inputs (the others are per side)

@@ -43,6 +43,29 @@ def blurred_patterns(pats: np.ndarray) -> np.ndarray:
     return out
 
 
+# over-exposure gains of :func:`clipped_patterns`: the paper white at 2, 4 and 8 times
+# the level where the sensor saturates
+CLIP_GAINS = (2.0, 4.0, 8.0)
+
+
+def clipped_patterns(blurred: np.ndarray, gains: tuple[float, ...] = CLIP_GAINS
+                     ) -> np.ndarray:
+    """(P, L * (1 + G), n * n): blurred cell means (:func:`blurred_patterns`) as the sensor
+    sees them over-exposed: ``min(1, g * mean)`` for each gain g, after the unclipped ones.
+
+    Clipping spreads the white into every black cell by the same margin, so a lone black
+    cell fades out before the solid border does; a marker in a clipped frame matches these
+    much better than any unclipped level.
+
+    Args:
+        blurred: (P, L, n * n) float, 1 = white.
+        gains: the over-exposures, > 1.
+    """
+    P, L, nn = blurred.shape
+    out = [blurred] + [np.minimum(1.0, g * blurred) for g in gains]
+    return np.concatenate(out, axis=1).reshape(P, L * (1 + len(gains)), nn)
+
+
 def inner_border_cells(board: Board, ids: np.ndarray, rows: int = 2) -> np.ndarray:
     """(M, 4, rows, bits) bool: per side, the code cells behind the border that share its colour.
 

@@ -134,13 +134,16 @@ def _median_of(values: np.ndarray, s: np.ndarray, basis: np.ndarray, c: np.ndarr
 def _normal_equations(p: np.ndarray, lo: int, hi: int, values: np.ndarray, s: np.ndarray,
                       basis: np.ndarray, far: np.ndarray, module_px: np.ndarray,
                       outer: np.ndarray, quiet_px: np.ndarray, box_a: float, box_b: float,
-                      quad: float, N: np.ndarray, g: np.ndarray) -> tuple[float, float]:
+                      quad: float, N: np.ndarray, g: np.ndarray, sat: float
+                      ) -> tuple[float, float]:
     """Gauss-Newton normal equations of one side's samples lo..hi at parameters p (6,).
 
     Fills N (6, 6) = J^T J and g (6,) = J^T r; returns the cost r^T r and its part
     from the samples across the edge's transition (within 0.7 px plus two blurs of
     it, and less than half a module: where the tone curve shapes the profile). The
-    model is the module docstring's; p = (edge polynomial (3), A, D, log w).
+    model is the module docstring's; p = (edge polynomial (3), A, D, log w). A sample
+    at or above ``sat`` (a saturated pixel) is censored: it only says the light there
+    reached saturation, so it counts only where the model predicts less.
     """
     rows = far.shape[1]
     has_outer = outer.shape[0] > 0
@@ -177,6 +180,8 @@ def _normal_equations(p: np.ndarray, lo: int, hi: int, values: np.ndarray, s: np
             de += c * (pdf / w_eff)
             gw -= c * (pdf * z * shrink)
         res = values[i] - (p[3] + D * F)
+        if values[i] >= sat and res <= 0.0:
+            continue
         cost += res * res
         if abs(d) < band and abs(d) < 0.5 * module_px[i]:
             band_cost += res * res
@@ -240,12 +245,14 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
                coef0: np.ndarray, far: np.ndarray, module_px: np.ndarray,
                fit_order: np.ndarray, normal: np.ndarray, outer: np.ndarray,
                quiet_px: np.ndarray, cov_scale: float, iterations: int, blur0: np.ndarray,
-               tol_px: float, which: np.ndarray, coef: np.ndarray, cov: np.ndarray,
-               blur: np.ndarray, cost_out: np.ndarray) -> None:
+               tol_px: float, sat: float, hold_w: np.ndarray, hold_D: np.ndarray,
+               which: np.ndarray, coef: np.ndarray, cov: np.ndarray, blur: np.ndarray,
+               cost_out: np.ndarray, contrast: np.ndarray) -> None:
     """Damped Gauss-Newton fit of the sides ``which``; see :func:`fit_step_model`.
 
-    Writes rows ``which`` of coef (S, 3), cov (S, 3, 3), blur (S,) and cost_out (S,)
-    (and nothing else, so threads can share them).
+    Writes rows ``which`` of coef (S, 3), cov (S, 3, 3), blur (S,), cost_out (S,) and
+    contrast (S,) (and nothing else, so threads can share them). A side with
+    ``hold_w[k] > 0`` keeps that blur, one with a finite ``hold_D[k]`` that contrast.
     """
     for k in which:
         lo, hi = starts[k], starts[k + 1]
@@ -261,12 +268,18 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
         p[3] = A
         p[4] = B - A
         p[5] = math.log(max(blur0[k], 0.03))
+        free_w = hold_w[k] <= 0.0
+        free_D = not np.isfinite(hold_D[k])
+        if not free_w:
+            p[5] = math.log(max(hold_w[k], 0.03))
+        if not free_D:
+            p[4] = hold_D[k]
         N = np.empty((6, 6))
         g = np.empty(6)
         Nt = np.empty((6, 6))
         gt = np.empty(6)
         cost, band_cost = _normal_equations(p, lo, hi, values, s, basis, far, module_px,
-                                            outer, quiet_px, box_a, box_b, quad, N, g)
+                                            outer, quiet_px, box_a, box_b, quad, N, g, sat)
         lam = 1e-3
         Nd = np.empty((6, 6))
         rhs = np.empty((6, 1))
@@ -291,7 +304,9 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
                 if j < 2:
                     st = min(max(st, -1.0), 1.0)
                 elif j == 5:
-                    st = min(max(st, -0.5), 0.5)
+                    st = min(max(st, -0.5), 0.5) if free_w else 0.0
+                elif j == 4 and not free_D:
+                    st = 0.0
                 if j < 3:
                     moved += abs(st)
                 trial[j] = p[j] + st
@@ -301,7 +316,7 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
                 break
             cost_t, band_t = _normal_equations(trial, lo, hi, values, s, basis, far,
                                                module_px, outer, quiet_px, box_a, box_b,
-                                               quad, Nt, gt)
+                                               quad, Nt, gt, sat)
             if cost_t < cost:
                 for a in range(6):
                     p[a] = trial[a]
@@ -329,6 +344,7 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
         for j in range(3):
             coef[k, j] = p[j]
         blur[k] = math.exp(p[5])
+        contrast[k] = p[4]
         cost_out[k] = band_cost / max(p[4] * p[4], 1e-12)
 
 
@@ -338,7 +354,10 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
                    outer: np.ndarray | None = None, quiet_px: np.ndarray | None = None,
                    samples_per_px: float = 1.0, iterations: int = 4,
                    blur0: np.ndarray | None = None, tol_px: float = 0.0,
-                   sides: np.ndarray | None = None, cost_out: np.ndarray | None = None
+                   sides: np.ndarray | None = None, cost_out: np.ndarray | None = None,
+                   censor_at: float | None = None, hold_blur: np.ndarray | None = None,
+                   hold_contrast: np.ndarray | None = None,
+                   contrast_out: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fit the blurred-step model (module docstring) to every side.
 
@@ -372,6 +391,12 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
         cost_out: optional (S,) filled with each fitted side's sum of squared residuals
             across the edge's transition (see :func:`_normal_equations`), relative to
             its squared contrast ``D ** 2``.
+        censor_at: optional saturation level (linear): samples at or above it are
+            censored (they count only where the model predicts less light), for
+            over-exposed frames whose paper clips.
+        hold_blur: optional (S,) blur to hold a side at, pixels (0: fitted).
+        hold_contrast: optional (S,) contrast ``D`` to hold a side at (NaN: fitted).
+        contrast_out: optional (S,) filled with each fitted side's contrast ``D``.
 
     Returns:
         coef (S, 3) edge polynomial, cov (S, 3, 3) its covariance, blur (S,) pixels
@@ -391,11 +416,16 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
             np.ascontiguousarray(fit_order, np.intp), np.ascontiguousarray(normal, f64),
             none if outer is None else np.ascontiguousarray(outer, f64),
             none if quiet_px is None else np.ascontiguousarray(quiet_px, f64),
-            max(samples_per_px, 1.0), int(iterations), blur.copy(), float(tol_px))
+            max(samples_per_px, 1.0), int(iterations), blur.copy(), float(tol_px),
+            1e30 if censor_at is None else float(censor_at),
+            np.zeros(n_sides) if hold_blur is None else np.ascontiguousarray(hold_blur, f64),
+            np.full(n_sides, np.nan) if hold_contrast is None
+            else np.ascontiguousarray(hold_contrast, f64))
     # sides in runs of about equal sample counts, on the worker threads
     costs = np.zeros(n_sides) if cost_out is None else cost_out
     in_run = split_even(which, starts[which + 1] - starts[which])
-    run_all(lambda part: _fit_sides(*args, part, coef, cov, blur, costs), in_run)
+    contrast = np.zeros(n_sides) if contrast_out is None else contrast_out
+    run_all(lambda part: _fit_sides(*args, part, coef, cov, blur, costs, contrast), in_run)
     return coef, cov, blur
 
 

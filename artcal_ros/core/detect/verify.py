@@ -23,7 +23,7 @@ from artcal_ros.core.homography import apply_h, homographies, module_homographie
 
 
 def sides_are_edges(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, bits: int,
-                    min_share: float = 0.5) -> np.ndarray:
+                    min_share: float = 0.5, *, clipped: bool = False) -> np.ndarray:
     """(M,) bool: every refined side lies on the border's outer edge, in view.
 
     Half a module inside each side must read as the border and half a module
@@ -38,6 +38,12 @@ def sides_are_edges(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, bits
         dark: (M,) bool, the border is darker than the quiet zone.
         bits: code cells per marker side.
         min_share: least contrast of a side, as a share of the marker's strongest side.
+        clipped: the frame is over-exposed: the border is read at a quarter, half and
+            three quarters of a module inside, darkest (lightest for a light border) of
+            the three, and a side needs only half of ``min_share``. The clipped light eats
+            into a dark border from both of its edges, by a different part of a pixel on
+            each side, and can leave only a thin dark core away from the module's middle,
+            whose contrast then differs from side to side by a factor of two or three.
     """
     M = len(corners)
     if M == 0:
@@ -56,10 +62,16 @@ def sides_are_edges(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, bits
     # image edge keeps its quiet zone's first pixels in view)
     module_px = shortest_sides(corners) / n
     out_mod = np.minimum(0.5, 1.5 / np.maximum(module_px, 1e-6))
+    depths = (0.25, 0.5, 0.75) if clipped else (0.5,)
     for k in range(4):
-        c = np.full_like(s, fixed[k] + 0.5 * inward[k])
-        inner = np.c_[s, c] if horizontal[k] else np.c_[c, s]
-        pin = apply_h(H, np.broadcast_to(inner, (M, *inner.shape)))
+        reads = []
+        for depth in depths:
+            c = np.full_like(s, fixed[k] + depth * inward[k])
+            inner = np.c_[s, c] if horizontal[k] else np.c_[c, s]
+            pin = apply_h(H, np.broadcast_to(inner, (M, *inner.shape)))
+            reads.append(bilinear(lin, pin[..., 0], pin[..., 1]))
+        border_read = reads[0] if len(reads) == 1 else np.where(
+            dark[:, None], np.minimum.reduce(reads), np.maximum.reduce(reads))
         c_out = np.repeat((fixed[k] - out_mod * inward[k])[:, None], len(s), axis=1)
         s_b = np.broadcast_to(s, c_out.shape)
         outer = np.stack([s_b, c_out] if horizontal[k] else [c_out, s_b], axis=-1)
@@ -67,12 +79,13 @@ def sides_are_edges(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, bits
         on = ((pout[..., 0] >= 0) & (pout[..., 0] <= w - 1) & (pout[..., 1] >= 0)
               & (pout[..., 1] <= h - 1))
         seen[:, k] = on.mean(axis=1)
-        vin = np.median(bilinear(lin, pin[..., 0], pin[..., 1]), axis=1)
+        vin = np.median(border_read, axis=1)
         vout = nanmedian_rows(np.where(on, bilinear(lin, pout[..., 0], pout[..., 1]), np.nan))
         contrast[:, k] = np.where(dark, vout - vin, vin - vout)
     clean = np.nan_to_num(contrast, nan=-1.0)
     strongest = clean.max(axis=1, keepdims=True)
-    ok = (seen >= 0.8) & (clean >= min_share * strongest) & (strongest > 0)
+    share = 0.5 * min_share if clipped else min_share
+    ok = (seen >= 0.8) & (clean >= share * strongest) & (strongest > 0)
     return np.asarray(ok.all(axis=1))
 
 

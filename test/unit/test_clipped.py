@@ -1,0 +1,142 @@
+"""Over-exposed (clipped) frames against the renderer's exact truth.
+
+The quad finder's second pass on the saturation mask, the censored step-model fit and the
+clipped-border check (docs/tone.md, "Clipped frames"). Fixed seeds the benchmarks do not
+use; the figures are in docs/benchmarks.md ("Exposure sweep").
+"""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from artcal_ros.core.board import Board
+from artcal_ros.core.detect import Detector, DetectorConfig
+from artcal_ros.core.detect.candidates import dark_level, is_clipped, saturation_image
+from artcal_ros.core.detect.step_model import fit_step_model, pixel_esf
+from artcal_ros.synth import Camera, Photometry, RenderedView, random_poses, render_view
+
+CAM = Camera.preset("webcam")
+BOARD = Board()
+
+
+def _view(seed: int, phot: Photometry) -> RenderedView:
+    rng = np.random.default_rng(seed)
+    rvec, tvec = random_poses(BOARD, CAM, 1, rng, partial_fraction=0.0)[0]
+    return render_view(BOARD, CAM, rvec, tvec, photometry=phot, rng=rng)
+
+
+def _errors(view: RenderedView, det: Detector) -> tuple[int, int, np.ndarray, np.ndarray]:
+    """(markers found of those in view, in view, centre errors, corner errors), px."""
+    d = det.detect(view.image)
+    want = view.inside & (view.side_px >= 15)
+    k = d.ids - BOARD.first_id
+    # every reported marker is where its id says (no wrong ids)
+    off = np.linalg.norm(d.centers_px - view.centers_px[k], axis=1)
+    assert (off < 0.5 * view.side_px[k]).all()
+    good = want[k]
+    centres = np.linalg.norm(d.centers_px[good] - view.centers_px[k][good], axis=1)
+    corners = np.linalg.norm(d.corners_px[good] - view.corners_px[k][good], axis=2).ravel()
+    return int(good.sum()), int(want.sum()), centres, corners
+
+
+def _rms(e: np.ndarray) -> float:
+    return float(np.sqrt(np.mean(e ** 2)))
+
+
+def test_heavily_clipped_frame_is_detected() -> None:
+    """Paper 7 x over full scale, a slightly soft lens: the white eats the thin borders.
+
+    Without the saturation pass the quad finder finds (almost) nothing here; now most
+    markers are decoded and their centres are a few tenths of a pixel from the truth.
+    """
+    view = _view(5201, Photometry(defocus_px=0.7, exposure=9.0))
+    assert is_clipped(view.image)
+    found, wanted, centres, _ = _errors(view, Detector(BOARD))
+    assert wanted > 100
+    assert found >= 0.5 * wanted
+    assert _rms(centres) < 0.45
+
+
+def test_censored_fit_on_clipped_frame() -> None:
+    """Paper 2 x over full scale, sharp: censoring the saturated pixels in the edge fit
+    removes most of the edges' shift at its source and halves the centres' error."""
+    view = _view(5202, Photometry(exposure=2.5))
+    plain = DetectorConfig(censor_clipped=False, edge_shift=False)
+    _, _, c_plain, k_plain = _errors(view, Detector(BOARD, plain))
+    _, _, c_cens, k_cens = _errors(view, Detector(BOARD, DetectorConfig(edge_shift=False)))
+    assert _rms(c_cens) < 0.7 * _rms(c_plain)
+    assert _rms(k_cens) < 0.7 * _rms(k_plain)
+    assert _rms(c_cens) < 0.2
+    # the raw corners no longer need a large shift removed
+    det = Detector(BOARD)
+    assert abs(det.detect(view.image).edge_shift_px) < 0.1
+
+
+def test_normal_frame_is_not_clipped() -> None:
+    view = _view(5203, Photometry())
+    assert not is_clipped(view.image)
+    assert saturation_image(view.image) is None
+
+
+def test_saturation_image_and_dark_level() -> None:
+    """The mask is 0 where anything but saturation is, grown by a pixel; the dark level
+    of a quad reads its ink."""
+    img = np.full((60, 60), 255, np.uint8)
+    img[20:40, 20:40] = 100       # a dark square
+    img[29:31, 10:50] = 254       # a thin line just below saturation
+    mask = saturation_image(img)
+    assert mask is not None
+    assert (mask[19:41, 19:41] == 0).all()
+    assert mask[17, 17] == 255
+    assert (mask[28:32, 12:48] == 0).all()
+    lin = (img / 255.0) ** 2.2
+    quad = np.array([[[20.0, 20.0], [40.0, 20.0], [40.0, 40.0], [20.0, 40.0]]]) - 0.5
+    assert dark_level(lin, quad, 6) == pytest.approx((100 / 255) ** 2.2, rel=0.02)
+
+
+@pytest.mark.parametrize("angle_deg", [0.0, 20.0])
+def test_censored_step_fit_finds_clipped_edge(angle_deg: float) -> None:
+    """One side, a blurred step 6 x over saturation: the censored fit finds the true edge,
+    the plain fit of the clipped profile is pulled toward the dark side."""
+    rng = np.random.default_rng(5204)
+    true_e, sigma, A, D = 0.23, 0.6, 0.05, 6.0
+    nx, ny = np.cos(np.radians(angle_deg)), np.sin(np.radians(angle_deg))
+    # 30 profiles along the side, samples every pixel across it at varying phase
+    tau = np.repeat(np.linspace(-1.0, 1.0, 30), 9)
+    s = np.tile(np.arange(-4.0, 5.0), 30) + rng.uniform(-0.5, 0.5, tau.size)
+    light = np.array([A + D * pixel_esf(x - true_e, sigma, abs(nx), abs(ny))[0] for x in s])
+    values = np.minimum(light + rng.normal(0.0, 0.002, s.size), 1.0)
+    values[light >= 1.0] = 1.0
+    basis = np.stack([np.ones_like(tau), tau, tau ** 2 - 1.0 / 3.0], axis=1)
+    common = dict(s=s, side=np.zeros(s.size, np.intp), n_sides=1, basis=basis,
+                  coef0=np.zeros((1, 3)), far=np.zeros((s.size, 1)),
+                  module_px=np.full(s.size, 50.0), fit_order=np.array([2]),
+                  normal=np.array([[nx, ny]]), iterations=30)
+    censored = fit_step_model(values, censor_at=0.999, **common)[0][0, 0]
+    plain = fit_step_model(values, **common)[0][0, 0]
+    assert censored == pytest.approx(true_e, abs=0.05)
+    assert plain < true_e - 0.3
+
+
+def test_held_blur_and_contrast_place_a_lone_clipped_edge() -> None:
+    """A clipped edge with nothing behind it shows only its transition's dark tail; held
+    at its marker's blur and contrast (here the true ones), the censored fit finds it."""
+    rng = np.random.default_rng(5205)
+    true_e, sigma, A, D = -0.31, 0.7, 0.04, 5.0
+    tau = np.repeat(np.linspace(-1.0, 1.0, 30), 9)
+    s = np.tile(np.arange(-4.0, 5.0), 30) + rng.uniform(-0.5, 0.5, tau.size)
+    light = np.array([A + D * pixel_esf(x - true_e, sigma, 0.95, 0.31)[0] for x in s])
+    values = np.minimum(light + rng.normal(0.0, 0.004, s.size), 1.0)
+    values[light >= 1.0] = 1.0
+    basis = np.stack([np.ones_like(tau), tau, tau ** 2 - 1.0 / 3.0], axis=1)
+    common = dict(s=s, side=np.zeros(s.size, np.intp), n_sides=1, basis=basis,
+                  coef0=np.zeros((1, 3)), far=np.zeros((s.size, 1)),
+                  module_px=np.full(s.size, 50.0), fit_order=np.array([2]),
+                  normal=np.array([[0.95, 0.31]]), iterations=30, censor_at=0.999)
+    contrast = np.zeros(1)
+    coef, _, blur = fit_step_model(values, hold_blur=np.array([sigma]),
+                                   hold_contrast=np.array([D]), contrast_out=contrast,
+                                   **common)
+    assert coef[0, 0] == pytest.approx(true_e, abs=0.03)
+    assert blur[0] == pytest.approx(sigma) and contrast[0] == pytest.approx(D)
