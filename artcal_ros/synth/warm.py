@@ -5,7 +5,7 @@ sources. The first detection on a new install would otherwise pay the compilatio
 seconds on a small machine); ``make`` runs this once when it sets up ``.venv``, so the node,
 the CLI and the tests start from a warm cache. It renders a few frames of the default board
 and detects them the ways the package does (cold, streamed, with a known camera, grey 8 and
-16 bit, BGR, every polarity, and the node's marker tracker between them).
+16 bit, BGR, every polarity, over-exposed, and the node's marker tracker between them).
 """
 
 from __future__ import annotations
@@ -46,6 +46,13 @@ def warm() -> int:
             for _ in range(2):  # seeded, then followed into the same frame
                 index, _markers = tracker.track(view.image)
                 tracker.seed(index, dets)
+    # an over-exposed frame: the clipped-frame paths (censored and held side fits)
+    board = Board()
+    cam = Camera.preset("webcam")
+    for rvec, tvec in random_poses(board, cam, 1, rng):
+        view = render_view(board, cam, rvec, tvec, rng=rng,
+                           photometry=Photometry(exposure=4.0, defocus_px=0.7))
+        found += len(detect(view.image, board))
     # A signature the frames above do not reach: grey images sampled as float64 besides
     # float32 (a clean clone's test run compiled it after this warm-up).
     for dtype in (np.float32, np.float64):
