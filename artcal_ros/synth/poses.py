@@ -138,7 +138,8 @@ def _fit_distance(board: Board, cam: Camera, target: np.ndarray, R_bc: np.ndarra
 def random_poses(board: Board, cam: Camera, n: int, rng: np.random.Generator, *,
                  partial_fraction: float = 0.3, min_inside: int = 8,
                  min_distance: float = 0.3, max_distance: float = 2.5,
-                 max_tilt_deg: float = 55.0, max_roll_deg: float = 35.0) -> list[Pose]:
+                 max_tilt_deg: float = 55.0, max_roll_deg: float = 35.0,
+                 roll_centre_deg: float = 0.0) -> list[Pose]:
     """``n`` random, realistic, calibration-worthy views T_cam_board.
 
     Args:
@@ -148,7 +149,10 @@ def random_poses(board: Board, cam: Camera, n: int, rng: np.random.Generator, *,
             views of a board small enough to fit the image from closer than
             ``min_distance / 0.6`` come from 0.4 - 0.85 times that fitting distance).
         max_tilt_deg: largest angle between the optical axis and the board normal.
-        max_roll_deg: largest roll about the optical axis.
+        max_roll_deg: largest roll about the optical axis, either side of ``roll_centre_deg``.
+        roll_centre_deg: the board's usual roll: 90 holds a board whose long side is its y
+            axis (OpenCV's 4 x 11 asymmetric circle grid) across a landscape image, as one
+            holds it to reach the image's sides.
 
     Returns:
         list of (rvec (3,), tvec (3,) metres).
@@ -167,7 +171,7 @@ def random_poses(board: Board, cam: Camera, n: int, rng: np.random.Generator, *,
         for _attempt in range(300):
             phi = rng.uniform(0, 2 * math.pi)
             tilt = math.radians(rng.uniform(5.0, max_tilt_deg))
-            roll = math.radians(rng.uniform(-max_roll_deg, max_roll_deg))
+            roll = math.radians(roll_centre_deg + rng.uniform(-max_roll_deg, max_roll_deg))
             R_bc = _rot(np.array([math.cos(phi), math.sin(phi), 0.0]), tilt) @ _rot(
                 np.array([0.0, 0.0, 1.0]), roll)
             if partial:

@@ -392,3 +392,24 @@ def test_artcal_cli_exit_status(tmp_path: Path, capsys: pytest.CaptureFixture[st
     assert len(err) == 1 and "preset" in err[0] and "webcam" in err[0]
     assert main(["synth", "--frames", "1", "--out", str(tmp_path / "ok")]) == 0
     assert (tmp_path / "ok" / "frame_0000.png").is_file()
+
+
+def test_poses_held_across_the_image_reach_its_sides() -> None:
+    """A board long along its y axis (OpenCV's 4 x 11 asymmetric circle grid), rolled by
+    90 degrees, lies across a landscape image and spans more of its width than upright."""
+    board = Board(board_type="acircles", cols=4, rows=11, square_length=0.03)
+    cam = Camera.preset("webcam")
+    spans = {}
+    for roll in (0.0, 90.0):
+        rng = np.random.default_rng(4)
+        widths = []
+        for rvec, tvec in random_poses(board, cam, 6, rng, partial_fraction=0.0,
+                                       roll_centre_deg=roll):
+            R = cv2.Rodrigues(rvec)[0]
+            # the board's y axis in the image runs mostly along x once rolled
+            y_axis = R[:, 1]
+            assert (abs(y_axis[0]) > abs(y_axis[1])) == (roll == 90.0)
+            px = project_points(cam, board.object_points(), rvec, tvec)
+            widths.append(np.ptp(px[:, 0]) / cam.width)
+        spans[roll] = float(np.median(widths))
+    assert spans[90.0] > 1.2 * spans[0.0]
