@@ -14,6 +14,11 @@ from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool, division_u
 from artcal_ros.core.detect.sides import SideModel, side_frames
 
 
+# largest |coefficient| of a plausible division lens (a 170-degree equidistant lens is
+# about -1.1, -0.25, -0.08 with the half diagonal as unit radius)
+MAX_COEF = 4.0
+
+
 def lens_bend(lens: Lens, a: np.ndarray, u: np.ndarray, n: np.ndarray,
               length: np.ndarray) -> np.ndarray:
     """(S,) parabola coefficient of the image of a straight edge between each side's ends.
@@ -33,6 +38,9 @@ def lens_bend(lens: Lens, a: np.ndarray, u: np.ndarray, n: np.ndarray,
     mid_u = 0.5 * (und[: len(a)] + und[len(a):])
     mid_d = lens.distort(mid_u)
     sag = np.einsum("sd,sd->s", mid_d - 0.5 * (p0 + p1), n)
+    if isinstance(lens, DivisionLens):
+        # beyond the model's fold there is no straightened edge to bend by
+        sag[~lens.one_to_one(np.concatenate([p0, p1])).reshape(2, -1).all(axis=0)] = 0.0
     return -np.nan_to_num(sag)
 
 
@@ -167,6 +175,15 @@ def estimate_division(model: SideModel, quads: np.ndarray, t: np.ndarray,
         pool.info_theta = pool.info_theta + own_info @ theta - own_grad
     lam, lam2, lam3 = float(theta[0]), float(theta[1]), float(theta[2])
     sd = float(np.sqrt(max(np.linalg.inv(info)[0, 0], 1e-30)))
-    if not np.isfinite(theta).all() or abs(lam) > 1.0 or abs(lam2) > 1.0 or abs(lam3) > 1.0:
+    if not np.isfinite(theta).all() or np.abs(theta).max() > MAX_COEF:
         return None
-    return DivisionLens(lam, center, scale, lam2, lam3, abs(lam) / sd)
+    lens = DivisionLens(lam, center, scale, lam2, lam3, abs(lam) / sd)
+    # plausible only if one to one over the sides it was fitted to: a model folding inside
+    # them would straighten the far ones into nonsense (a 170-degree equidistant lens needs
+    # lam near -1.1 and folds just outside its 90-degree circle, so no bound on lam alone
+    # separates it from a bad fit)
+    side_pts = pts[ok][valid[ok]] if ok.any() else quads.reshape(-1, 2)
+    reach = float(np.linalg.norm(side_pts - center, axis=1).max()) / scale
+    if lens.fold_radius() <= reach:
+        return None
+    return lens
