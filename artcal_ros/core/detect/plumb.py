@@ -13,7 +13,6 @@ from numba import njit
 from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool, division_undistort
 from artcal_ros.core.detect.sides import SideModel, side_frames
 
-
 # largest |coefficient| of a plausible division lens (a 170-degree equidistant lens is
 # about -1.1, -0.25, -0.08 with the half diagonal as unit radius)
 MAX_COEF = 4.0
