@@ -36,7 +36,7 @@ def diagonal_centers(corners: np.ndarray, corner_sigma: np.ndarray,
     if isinstance(lens, DivisionLens):
         # a marker beyond the estimated model's fold: its plain diagonals (better than the
         # model's round trip through a fold)
-        out = ~lens.one_to_one(corners).reshape(M, 4).all(axis=1)
+        out = np.asarray(~lens.one_to_one(corners).reshape(M, 4).all(axis=1), dtype=bool)
         q[out] = corners[out]
     h = np.concatenate([q, np.ones((M, 4, 1))], axis=2)
     d1 = np.cross(h[:, 0], h[:, 2])
