@@ -13,9 +13,13 @@ from numba import njit
 from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool, division_undistort
 from artcal_ros.core.detect.sides import SideModel, side_frames
 
-# largest |coefficient| of a plausible division lens (a 170-degree equidistant lens is
-# about -1.1, -0.25, -0.08 with the half diagonal as unit radius)
-MAX_COEF = 4.0
+# the plausible division lenses (unit radius: the image's half diagonal): barrel distortion
+# as strong as a 170-degree equidistant lens's (about -1.1, -0.25, -0.08), pincushion of at
+# most the old symmetric bound. Camera lenses do not have pincushion that strong; noisy
+# dark frames' sides do fit it (lam +1.15 - +1.4 on bench.detection's dark webcam frames,
+# a barrel lens), and a looser symmetric bound let those through.
+LAM_RANGE = (-2.0, 1.0)
+MAX_HIGHER = 1.0  # |lam2|, |lam3|
 
 
 def lens_bend(lens: Lens, a: np.ndarray, u: np.ndarray, n: np.ndarray,
@@ -174,7 +178,8 @@ def estimate_division(model: SideModel, quads: np.ndarray, t: np.ndarray,
         pool.info_theta = pool.info_theta + own_info @ theta - own_grad
     lam, lam2, lam3 = float(theta[0]), float(theta[1]), float(theta[2])
     sd = float(np.sqrt(max(np.linalg.inv(info)[0, 0], 1e-30)))
-    if not np.isfinite(theta).all() or np.abs(theta).max() > MAX_COEF:
+    if (not np.isfinite(theta).all() or not LAM_RANGE[0] <= lam <= LAM_RANGE[1]
+            or max(abs(lam2), abs(lam3)) > MAX_HIGHER):
         return None
     lens = DivisionLens(lam, center, scale, lam2, lam3, abs(lam) / sd)
     # plausible only if one to one over the sides it was fitted to: a model folding inside
