@@ -75,9 +75,19 @@ class DivisionLens:
 
 
 # the fold search: radii up to FOLD_MAX (four times the image's half diagonal) in FOLD_STEP
-# steps; a model that does not fold there is taken as one that does not fold
+# steps, then bisection; a model that does not fold there is taken as one that does not fold
 FOLD_MAX = 4.0
-FOLD_STEP = 1e-3
+FOLD_STEP = 0.01
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def _unfolded(r: float, lam: float, lam2: float, lam3: float) -> bool:
+    """Whether ``r / f(r)`` still increases at normalised radius ``r`` with ``f`` positive."""
+    r2 = r * r
+    f = 1.0 + r2 * (lam + r2 * (lam2 + r2 * lam3))
+    # d(r / f)/dr has the sign of f - r f'(r)
+    rdf = r2 * (2.0 * lam + r2 * (4.0 * lam2 + 6.0 * lam3 * r2))
+    return f > 0.0 and f - rdf > 0.0
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
@@ -85,12 +95,15 @@ def division_fold_radius(lam: float, lam2: float, lam3: float) -> float:
     """First normalised radius where ``r / f(r)`` stops increasing; FOLD_MAX if none below."""
     r = 0.0
     while r < FOLD_MAX:
-        r2 = r * r
-        f = 1.0 + r2 * (lam + r2 * (lam2 + r2 * lam3))
-        # d(r / f)/dr has the sign of f - r f'(r)
-        rdf = r2 * (2.0 * lam + r2 * (4.0 * lam2 + 6.0 * lam3 * r2))
-        if f <= 0.0 or f - rdf <= 0.0:
-            return r
+        if not _unfolded(r + FOLD_STEP, lam, lam2, lam3):
+            lo, hi = r, r + FOLD_STEP
+            for _ in range(30):
+                mid = 0.5 * (lo + hi)
+                if _unfolded(mid, lam, lam2, lam3):
+                    lo = mid
+                else:
+                    hi = mid
+            return lo
         r += FOLD_STEP
     return FOLD_MAX
 
