@@ -20,6 +20,8 @@ from artcal_ros.core.detect.sides import SideModel, side_frames
 # a barrel lens), and a looser symmetric bound let those through.
 LAM_RANGE = (-2.0, 1.0)
 MAX_HIGHER = 1.0  # |lam2|, |lam3|
+# the largest share of the usable sides a plausible lens may leave beyond its fold
+MAX_BEYOND_FOLD = 0.1
 
 
 def lens_bend(lens: Lens, a: np.ndarray, u: np.ndarray, n: np.ndarray,
@@ -156,6 +158,8 @@ def estimate_division(model: SideModel, quads: np.ndarray, t: np.ndarray,
     info: np.ndarray = np.zeros((3, 3))
     own_info: np.ndarray = np.zeros((3, 3))
     own_grad: np.ndarray = np.zeros(3)
+    # each side's farthest profile from the centre, in units of the half diagonal
+    side_reach = np.where(valid, np.linalg.norm(pts - center, axis=2), 0.0).max(axis=1) / scale
     for _ in range(3):
         c = _side_curvature(_division(theta, center, scale), pts, quads, valid)
         G = np.stack([(_side_curvature(_division(theta + eps * np.eye(3)[k], center, scale),
@@ -182,12 +186,11 @@ def estimate_division(model: SideModel, quads: np.ndarray, t: np.ndarray,
             or max(abs(lam2), abs(lam3)) > MAX_HIGHER):
         return None
     lens = DivisionLens(lam, center, scale, lam2, lam3, abs(lam) / sd)
-    # plausible only if one to one over the sides it was fitted to: a model folding inside
-    # them would straighten the far ones into nonsense (a 170-degree equidistant lens needs
-    # lam near -1.1 and folds just outside its 90-degree circle, so no bound on lam alone
-    # separates it from a bad fit)
-    side_pts = pts[ok][valid[ok]] if ok.any() else quads.reshape(-1, 2)
-    reach = float(np.linalg.norm(side_pts - center, axis=1).max()) / scale
-    if lens.fold_radius() <= reach:
+    # plausible only if one to one over nearly all the sides it could be fitted to: a model
+    # folding inside many of them would straighten those into nonsense. (A 170-degree
+    # equidistant lens needs lam near -1.1 and folds at its 90-degree circle, where a close
+    # view's outermost sides can lie; those few keep straight sides, see lens_bend.)
+    beyond = use & (side_reach >= lens.fold_radius())
+    if beyond.sum() > MAX_BEYOND_FOLD * max(int(use.sum()), 1):
         return None
     return lens
