@@ -176,14 +176,38 @@ def estimate_division(model: SideModel, quads: np.ndarray, t: np.ndarray,
             theta = theta - np.linalg.solve(info, rhs)
         except np.linalg.LinAlgError:
             return None
-    if pool is not None and np.isfinite(theta).all():
-        # this frame's own estimate, linearised at theta: own_info^-1 (own_info theta - grad)
-        pool.info = pool.info + own_info
-        pool.info_theta = pool.info_theta + own_info @ theta - own_grad
-    lam, lam2, lam3 = float(theta[0]), float(theta[1]), float(theta[2])
     sd = float(np.sqrt(max(np.linalg.inv(info)[0, 0], 1e-30)))
-    if (not np.isfinite(theta).all() or not LAM_RANGE[0] <= lam <= LAM_RANGE[1]
-            or max(abs(lam2), abs(lam3)) > MAX_HIGHER):
+    lens = _plausible(theta, center, scale, sd, use, side_reach)
+    if lens is not None:
+        if pool is not None:
+            # this frame's own estimate, linearised at theta: own_info^-1 (own_info theta -
+            # grad). Only a plausible fit joins the pool: the linearisations of fits that
+            # disagree wildly do not add up to a fit of their sides (one implausible
+            # fisheye frame pooled took lam from -0.75 to +1.4 for every later frame)
+            pool.info = pool.info + own_info
+            pool.info_theta = pool.info_theta + own_info @ theta - own_grad
+        return lens
+    if not pooled_info.any():
+        return None
+    # this frame disagrees with the pool (a close view's far sides, beyond what the model
+    # follows): the pool's own estimate, if it is plausible for this frame's sides
+    try:
+        theta_p = np.linalg.solve(prior + pooled_info, pooled_rhs)
+        sd_p = float(np.sqrt(max(np.linalg.inv(prior + pooled_info)[0, 0], 1e-30)))
+    except np.linalg.LinAlgError:
+        return None
+    return _plausible(theta_p, center, scale, sd_p, use, side_reach)
+
+
+def _plausible(theta: np.ndarray, center: np.ndarray, scale: float, sd: float,
+               use: np.ndarray, side_reach: np.ndarray) -> DivisionLens | None:
+    """The division lens of theta (3,), or None when it is not a plausible lens for the
+    sides ``use`` (S,) bool that reach ``side_reach`` (S,) half diagonals from the centre.
+    ``sd``: the standard deviation of lam (for the lens's significance)."""
+    if not np.isfinite(theta).all():
+        return None
+    lam, lam2, lam3 = float(theta[0]), float(theta[1]), float(theta[2])
+    if not LAM_RANGE[0] <= lam <= LAM_RANGE[1] or max(abs(lam2), abs(lam3)) > MAX_HIGHER:
         return None
     lens = DivisionLens(lam, center, scale, lam2, lam3, abs(lam) / sd)
     # plausible only if one to one over nearly all the sides it could be fitted to: a model
