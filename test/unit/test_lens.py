@@ -68,3 +68,25 @@ def test_pooled_fisheye_lens_keeps_centres_on_truth() -> None:
         corner = np.linalg.norm(det.corners_px - view.corners_px[k], axis=2)
         assert np.sqrt(np.mean(centre**2)) < 0.06 and centre.max() < 0.1
         assert np.sqrt(np.mean(corner**2)) < 0.05
+
+
+def test_plausible_division_lenses() -> None:
+    from artcal_ros.core.detect.plumb import _plausible
+
+    centre, scale = FISHEYE_DIVISION.center, FISHEYE_DIVISION.scale
+    use = np.ones(100, bool)
+    inside = np.linspace(0.1, 0.8, 100)  # sides within the fisheye model's fold (0.86)
+    fisheye = np.array([-1.1146, -0.2484, -0.0791])
+    lens = _plausible(fisheye, centre, scale, 0.01, use, inside)
+    assert lens is not None and abs(lens.significance - 111.46) < 0.01
+    # a few sides beyond the fold (a close view's outermost) are tolerated, many are not
+    some_out = inside.copy()
+    some_out[:5] = 0.9
+    assert _plausible(fisheye, centre, scale, 0.01, use, some_out) is not None
+    many_out = inside.copy()
+    many_out[:20] = 0.9
+    assert _plausible(fisheye, centre, scale, 0.01, use, many_out) is None
+    # the strong pincushion a noisy dark frame of a barrel lens fits is no lens
+    assert _plausible(np.array([1.15, -0.855, -0.014]), centre, scale, 0.1, use,
+                      inside) is None
+    assert _plausible(np.array([np.nan, 0.0, 0.0]), centre, scale, 0.1, use, inside) is None
