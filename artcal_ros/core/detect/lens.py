@@ -123,6 +123,53 @@ def division_undistort(pts: np.ndarray, center: np.ndarray, scale: float, lam: f
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
+def _newton_radius(ru: float, lam: float, lam2: float, lam3: float) -> float:
+    """Newton's method for ``r_d = r_u f(r_d)`` from ``r_u f(r_u)``; -1 if not converged."""
+    r2 = ru * ru
+    rd = ru * (1.0 + r2 * (lam + r2 * (lam2 + r2 * lam3)))
+    step = 0.0
+    for it in range(20):
+        r2 = rd * rd
+        g = rd - ru * (1.0 + r2 * (lam + r2 * (lam2 + r2 * lam3)))
+        dg = 1.0 - ru * rd * (2.0 * lam + r2 * (4.0 * lam2 + 6.0 * lam3 * r2))
+        step = g / dg
+        if not np.isfinite(step):
+            return -1.0
+        rd -= step
+        if it >= 3 and abs(step) < 1e-13:
+            return rd
+    return rd if abs(step) < 1e-9 else -1.0
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def _bracketed_radius(ru: float, lam: float, lam2: float, lam3: float, fold: float,
+                      top: float) -> float:
+    """The root of ``r - r_u f(r)`` on [0, top): Newton's method kept inside the bracket,
+    bisecting when a step leaves it (``h`` is negative below the root, positive above)."""
+    lo, hi = 0.0, top
+    r2 = ru * ru
+    rd = ru * (1.0 + r2 * (lam + r2 * (lam2 + r2 * lam3)))
+    if not lo < rd < hi:
+        rd = 0.5 * fold if hi < np.inf else ru
+    for _ in range(60):
+        r2 = rd * rd
+        g = rd - ru * (1.0 + r2 * (lam + r2 * (lam2 + r2 * lam3)))
+        if g > 0.0:
+            hi = rd
+        else:
+            lo = rd
+        dg = 1.0 - ru * rd * (2.0 * lam + r2 * (4.0 * lam2 + 6.0 * lam3 * r2))
+        nxt = rd - g / dg if dg != 0.0 else -1.0
+        if not lo < nxt < hi:
+            nxt = 0.5 * (lo + hi) if hi < np.inf else 2.0 * rd + 1e-3
+        done = abs(nxt - rd) < 1e-13 or hi - lo < 1e-13
+        rd = nxt
+        if done:
+            break
+    return rd
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
 def _division_distort(pts: np.ndarray, center: np.ndarray, scale: float, lam: float,
                       lam2: float, lam3: float) -> np.ndarray:
     """(N, 2) straightened pixels -> image pixels (see :meth:`DivisionLens.distort`)."""
@@ -139,30 +186,14 @@ def _division_distort(pts: np.ndarray, center: np.ndarray, scale: float, lam: fl
         if ru >= ru_max:
             rd = fold
         else:
-            # h(r) = r - ru f(r) is negative below the root and positive above it up to the
-            # fold: Newton's method kept inside that bracket, bisecting when a step leaves
-            # it. (A strong barrel lens's first guess r_u f(r_u) can be far off, even
-            # negative; Newton from it alone converged to other roots of the polynomial.)
-            lo, hi = 0.0, top
-            r2 = ru * ru
-            rd = ru * (1.0 + r2 * (lam + r2 * (lam2 + r2 * lam3)))
-            if not lo < rd < hi:
-                rd = 0.5 * fold if hi < np.inf else ru
-            for _ in range(60):
-                r2 = rd * rd
-                g = rd - ru * (1.0 + r2 * (lam + r2 * (lam2 + r2 * lam3)))
-                if g > 0.0:
-                    hi = rd
-                else:
-                    lo = rd
-                dg = 1.0 - ru * rd * (2.0 * lam + r2 * (4.0 * lam2 + 6.0 * lam3 * r2))
-                nxt = rd - g / dg if dg != 0.0 else -1.0
-                if not lo < nxt < hi:
-                    nxt = 0.5 * (lo + hi) if hi < np.inf else 2.0 * rd + 1e-3
-                done = abs(nxt - rd) < 1e-13 or hi - lo < 1e-13
-                rd = nxt
-                if done:
-                    break
+            rd = _newton_radius(ru, lam, lam2, lam3)
+            # h(r) = r - ru f(r) has one root on [0, fold], the one wanted; Newton's method
+            # from r_u f(r_u) (a few steps, no test: independent points overlap in the CPU)
+            # finds it for most points, but for a strong barrel lens that first guess can
+            # be far off, even negative, and Newton then ends at another root of the
+            # polynomial: those points are solved again inside the bracket
+            if not 0.0 <= rd < top:
+                rd = _bracketed_radius(ru, lam, lam2, lam3, fold, top)
         gain = rd / ru if ru > 0 else 1.0
         out[i, 0] = center[0] + dx * gain
         out[i, 1] = center[1] + dy * gain
