@@ -8,7 +8,7 @@ from __future__ import annotations
 
 import numpy as np
 
-from artcal_ros.core.detect.lens import Lens
+from artcal_ros.core.detect.lens import DivisionLens, Lens
 
 
 def diagonal_centers(corners: np.ndarray, corner_sigma: np.ndarray,
@@ -33,6 +33,11 @@ def diagonal_centers(corners: np.ndarray, corner_sigma: np.ndarray,
     if M == 0:
         return np.zeros((0, 2)), np.zeros(0)
     q = corners if lens is None else lens.undistort(corners.reshape(-1, 2)).reshape(M, 4, 2)
+    if isinstance(lens, DivisionLens):
+        # a marker beyond the estimated model's fold: its plain diagonals (better than the
+        # model's round trip through a fold)
+        out = np.asarray(~lens.one_to_one(corners).reshape(M, 4).all(axis=1), dtype=bool)
+        q[out] = corners[out]
     h = np.concatenate([q, np.ones((M, 4, 1))], axis=2)
     d1 = np.cross(h[:, 0], h[:, 2])
     d2 = np.cross(h[:, 1], h[:, 3])
@@ -43,6 +48,8 @@ def diagonal_centers(corners: np.ndarray, corner_sigma: np.ndarray,
     bad = ~np.isfinite(centers).all(axis=1)
     centers[bad] = q[bad].mean(axis=1)
     if lens is not None:
-        centers = lens.distort(centers)
+        mapped = lens.distort(centers)
+        centers = mapped if not isinstance(lens, DivisionLens) else np.where(
+            out[:, None], centers, mapped)
     sigma = 0.5 * np.sqrt(np.mean(np.asarray(corner_sigma, dtype=np.float64) ** 2, axis=1))
     return centers, sigma

@@ -13,6 +13,16 @@ from numba import njit
 from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool, division_undistort
 from artcal_ros.core.detect.sides import SideModel, side_frames
 
+# the plausible division lenses (unit radius: the image's half diagonal): barrel distortion
+# as strong as a 170-degree equidistant lens's (about -1.1, -0.25, -0.08), pincushion of at
+# most the old symmetric bound. Camera lenses do not have pincushion that strong; noisy
+# dark frames' sides do fit it (lam +1.15 - +1.4 on bench.detection's dark webcam frames,
+# a barrel lens), and a looser symmetric bound let those through.
+LAM_RANGE = (-2.0, 1.0)
+MAX_HIGHER = 1.0  # |lam2|, |lam3|
+# the largest share of the usable sides a plausible lens may leave beyond its fold
+MAX_BEYOND_FOLD = 0.1
+
 
 def lens_bend(lens: Lens, a: np.ndarray, u: np.ndarray, n: np.ndarray,
               length: np.ndarray) -> np.ndarray:
@@ -33,6 +43,9 @@ def lens_bend(lens: Lens, a: np.ndarray, u: np.ndarray, n: np.ndarray,
     mid_u = 0.5 * (und[: len(a)] + und[len(a):])
     mid_d = lens.distort(mid_u)
     sag = np.einsum("sd,sd->s", mid_d - 0.5 * (p0 + p1), n)
+    if isinstance(lens, DivisionLens):
+        # beyond the model's fold there is no straightened edge to bend by
+        sag[~lens.one_to_one(np.concatenate([p0, p1])).reshape(2, -1).all(axis=0)] = 0.0
     return -np.nan_to_num(sag)
 
 
@@ -145,6 +158,8 @@ def estimate_division(model: SideModel, quads: np.ndarray, t: np.ndarray,
     info: np.ndarray = np.zeros((3, 3))
     own_info: np.ndarray = np.zeros((3, 3))
     own_grad: np.ndarray = np.zeros(3)
+    # each side's farthest profile from the centre, in units of the half diagonal
+    side_reach = np.where(valid, np.linalg.norm(pts - center, axis=2), 0.0).max(axis=1) / scale
     for _ in range(3):
         c = _side_curvature(_division(theta, center, scale), pts, quads, valid)
         G = np.stack([(_side_curvature(_division(theta + eps * np.eye(3)[k], center, scale),
@@ -161,12 +176,45 @@ def estimate_division(model: SideModel, quads: np.ndarray, t: np.ndarray,
             theta = theta - np.linalg.solve(info, rhs)
         except np.linalg.LinAlgError:
             return None
-    if pool is not None and np.isfinite(theta).all():
-        # this frame's own estimate, linearised at theta: own_info^-1 (own_info theta - grad)
-        pool.info = pool.info + own_info
-        pool.info_theta = pool.info_theta + own_info @ theta - own_grad
-    lam, lam2, lam3 = float(theta[0]), float(theta[1]), float(theta[2])
     sd = float(np.sqrt(max(np.linalg.inv(info)[0, 0], 1e-30)))
-    if not np.isfinite(theta).all() or abs(lam) > 1.0 or abs(lam2) > 1.0 or abs(lam3) > 1.0:
+    lens = _plausible(theta, center, scale, sd, use, side_reach)
+    if lens is not None:
+        if pool is not None:
+            # this frame's own estimate, linearised at theta: own_info^-1 (own_info theta -
+            # grad). Only a plausible fit joins the pool: the linearisations of fits that
+            # disagree wildly do not add up to a fit of their sides (one implausible
+            # fisheye frame pooled took lam from -0.75 to +1.4 for every later frame)
+            pool.info = pool.info + own_info
+            pool.info_theta = pool.info_theta + own_info @ theta - own_grad
+        return lens
+    if not pooled_info.any():
         return None
-    return DivisionLens(lam, center, scale, lam2, lam3, abs(lam) / sd)
+    # this frame disagrees with the pool (a close view's far sides, beyond what the model
+    # follows): the pool's own estimate, if it is plausible for this frame's sides
+    try:
+        theta_p = np.linalg.solve(prior + pooled_info, pooled_rhs)
+        sd_p = float(np.sqrt(max(np.linalg.inv(prior + pooled_info)[0, 0], 1e-30)))
+    except np.linalg.LinAlgError:
+        return None
+    return _plausible(theta_p, center, scale, sd_p, use, side_reach)
+
+
+def _plausible(theta: np.ndarray, center: np.ndarray, scale: float, sd: float,
+               use: np.ndarray, side_reach: np.ndarray) -> DivisionLens | None:
+    """The division lens of theta (3,), or None when it is not a plausible lens for the
+    sides ``use`` (S,) bool that reach ``side_reach`` (S,) half diagonals from the centre.
+    ``sd``: the standard deviation of lam (for the lens's significance)."""
+    if not np.isfinite(theta).all():
+        return None
+    lam, lam2, lam3 = float(theta[0]), float(theta[1]), float(theta[2])
+    if not LAM_RANGE[0] <= lam <= LAM_RANGE[1] or max(abs(lam2), abs(lam3)) > MAX_HIGHER:
+        return None
+    lens = DivisionLens(lam, center, scale, lam2, lam3, abs(lam) / sd)
+    # plausible only if one to one over nearly all the sides it could be fitted to: a model
+    # folding inside many of them would straighten those into nonsense. (A 170-degree
+    # equidistant lens needs lam near -1.1 and folds at its 90-degree circle, where a close
+    # view's outermost sides can lie; those few keep straight sides, see lens_bend.)
+    beyond = use & (side_reach >= lens.fold_radius())
+    if beyond.sum() > MAX_BEYOND_FOLD * max(int(use.sum()), 1):
+        return None
+    return lens
