@@ -51,21 +51,37 @@ def test_board_from_camera_calibration_size_and_square(tmp_path: Path,
     assert "chessboard" in out
 
 
-def test_detect_with_size_and_square_finds_the_true_points(tmp_path: Path) -> None:
-    board = Board(board_type="chessboard", cols=9, rows=6, square_length=0.04)
+def _detect_matches_truth(tmp_path: Path, board: Board, seed: int, options: list[str],
+                          n_points: int) -> None:
+    """Render two whole-board views, ``artcal detect`` them with the board given only by
+    ``options``, and find every point within 0.15 px of its true image."""
     data = tmp_path / "data"
-    truth = load_truth(write_dataset(board, Camera.preset("webcam"), data, frames=2, seed=17,
-                                     partial_fraction=0.0))
+    truth = load_truth(write_dataset(board, Camera.preset("webcam"), data, frames=2,
+                                     seed=seed, partial_fraction=0.0))
     out = tmp_path / "det.json"
     pngs = sorted(str(p) for p in data.glob("*.png"))
-    assert main(["detect", *pngs, "--size", "9x6", "--square", "0.04", "--json", str(out),
-                 "--quiet"]) == 0
+    assert main(["detect", *pngs, *options, "--json", str(out), "--quiet"]) == 0
     images = json.loads(out.read_text())["images"]
     for record, frame in zip(images, truth.frames, strict=True):
         true = dict(zip(frame.point_ids.tolist(), frame.points_px.tolist(), strict=True))
-        assert len(record["points"]) == len(true) == 54
+        assert len(record["points"]) == len(true) == n_points
         err = [np.hypot(*(np.array(p["xy"]) - true[p["id"]])) for p in record["points"]]
         assert max(err) < 0.15
+
+
+def test_detect_with_size_and_square_finds_the_true_points(tmp_path: Path) -> None:
+    _detect_matches_truth(tmp_path, Board(board_type="chessboard", cols=9, rows=6,
+                                          square_length=0.04), 17,
+                          ["--size", "9x6", "--square", "0.04"], 54)
+
+
+def test_detect_with_a_kalibr_circlegrid_finds_the_true_centres(tmp_path: Path) -> None:
+    target = tmp_path / "circles.yaml"
+    target.write_text("target_type: 'circlegrid'\ntargetCols: 4\ntargetRows: 11\n"
+                      "spacingMeters: 0.02\nasymmetricGrid: True\n")
+    _detect_matches_truth(tmp_path, Board(board_type="acircles", cols=4, rows=11,
+                                          square_length=0.02), 23,
+                          ["--target", str(target)], 44)
 
 
 @pytest.mark.parametrize("verb", ["board", "detect"])
@@ -86,22 +102,3 @@ def test_bad_board_options_are_one_line_naming_the_fault(tmp_path: Path, verb: s
     target.write_text(KALIBR_APRILGRID)
     assert main([verb, *rest, "--target", str(target), "--size", "9x6"]) == 2
     assert "give one" in capsys.readouterr().err
-
-
-def test_detect_with_a_kalibr_circlegrid_finds_the_true_centres(tmp_path: Path) -> None:
-    board = Board(board_type="acircles", cols=4, rows=11, square_length=0.02)
-    data = tmp_path / "data"
-    truth = load_truth(write_dataset(board, Camera.preset("webcam"), data, frames=2, seed=23,
-                                     partial_fraction=0.0))
-    target = tmp_path / "circles.yaml"
-    target.write_text("target_type: 'circlegrid'\ntargetCols: 4\ntargetRows: 11\n"
-                      "spacingMeters: 0.02\nasymmetricGrid: True\n")
-    out = tmp_path / "det.json"
-    pngs = sorted(str(p) for p in data.glob("*.png"))
-    assert main(["detect", *pngs, "--target", str(target), "--json", str(out), "--quiet"]) == 0
-    images = json.loads(out.read_text())["images"]
-    for record, frame in zip(images, truth.frames, strict=True):
-        true = dict(zip(frame.point_ids.tolist(), frame.points_px.tolist(), strict=True))
-        assert len(record["points"]) == 44
-        err = [np.hypot(*(np.array(p["xy"]) - true[p["id"]])) for p in record["points"]]
-        assert max(err) < 0.15

@@ -7,6 +7,8 @@ use; the figures are in docs/benchmarks.md ("Exposure sweep").
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -95,24 +97,33 @@ def test_saturation_image_and_dark_level() -> None:
     assert dark_level(lin, quad, 6) == pytest.approx((100 / 255) ** 2.2, rel=0.02)
 
 
+def _clipped_side(rng: np.random.Generator, true_e: float, sigma: float, A: float, D: float,
+                  normal: tuple[float, float], noise: float) -> tuple[np.ndarray, dict[str, Any]]:
+    """One side's samples of a blurred step of light A + D (clipped at 1) across an edge at
+    ``true_e`` px, and the other arguments of ``fit_step_model`` for it: 30 profiles along
+    the side, a sample every pixel across it at varying phase."""
+    nx, ny = normal
+    tau = np.repeat(np.linspace(-1.0, 1.0, 30), 9)
+    s = np.tile(np.arange(-4.0, 5.0), 30) + rng.uniform(-0.5, 0.5, tau.size)
+    light = np.array([A + D * pixel_esf(x - true_e, sigma, abs(nx), abs(ny))[0] for x in s])
+    values = np.minimum(light + rng.normal(0.0, noise, s.size), 1.0)
+    values[light >= 1.0] = 1.0
+    basis = np.stack([np.ones_like(tau), tau, tau ** 2 - 1.0 / 3.0], axis=1)
+    common: dict[str, Any] = dict(
+        s=s, side=np.zeros(s.size, np.intp), n_sides=1, basis=basis, coef0=np.zeros((1, 3)),
+        far=np.zeros((s.size, 1)), module_px=np.full(s.size, 50.0), fit_order=np.array([2]),
+        normal=np.array([[nx, ny]]), iterations=30)
+    return values, common
+
+
 @pytest.mark.parametrize("angle_deg", [0.0, 20.0])
 def test_censored_step_fit_finds_clipped_edge(angle_deg: float) -> None:
     """One side, a blurred step 6 x over saturation: the censored fit finds the true edge,
     the plain fit of the clipped profile is pulled toward the dark side."""
-    rng = np.random.default_rng(5204)
-    true_e, sigma, A, D = 0.23, 0.6, 0.05, 6.0
+    true_e = 0.23
     nx, ny = np.cos(np.radians(angle_deg)), np.sin(np.radians(angle_deg))
-    # 30 profiles along the side, samples every pixel across it at varying phase
-    tau = np.repeat(np.linspace(-1.0, 1.0, 30), 9)
-    s = np.tile(np.arange(-4.0, 5.0), 30) + rng.uniform(-0.5, 0.5, tau.size)
-    light = np.array([A + D * pixel_esf(x - true_e, sigma, abs(nx), abs(ny))[0] for x in s])
-    values = np.minimum(light + rng.normal(0.0, 0.002, s.size), 1.0)
-    values[light >= 1.0] = 1.0
-    basis = np.stack([np.ones_like(tau), tau, tau ** 2 - 1.0 / 3.0], axis=1)
-    common = dict(s=s, side=np.zeros(s.size, np.intp), n_sides=1, basis=basis,
-                  coef0=np.zeros((1, 3)), far=np.zeros((s.size, 1)),
-                  module_px=np.full(s.size, 50.0), fit_order=np.array([2]),
-                  normal=np.array([[nx, ny]]), iterations=30)
+    values, common = _clipped_side(np.random.default_rng(5204), true_e, 0.6, 0.05, 6.0,
+                                   (nx, ny), 0.002)
     censored = fit_step_model(values, censor_at=0.999, **common)[0][0, 0]
     plain = fit_step_model(values, **common)[0][0, 0]
     assert censored == pytest.approx(true_e, abs=0.05)
@@ -122,18 +133,10 @@ def test_censored_step_fit_finds_clipped_edge(angle_deg: float) -> None:
 def test_held_blur_and_contrast_place_a_lone_clipped_edge() -> None:
     """A clipped edge with nothing behind it shows only its transition's dark tail; held
     at its marker's blur and contrast (here the true ones), the censored fit finds it."""
-    rng = np.random.default_rng(5205)
-    true_e, sigma, A, D = -0.31, 0.7, 0.04, 5.0
-    tau = np.repeat(np.linspace(-1.0, 1.0, 30), 9)
-    s = np.tile(np.arange(-4.0, 5.0), 30) + rng.uniform(-0.5, 0.5, tau.size)
-    light = np.array([A + D * pixel_esf(x - true_e, sigma, 0.95, 0.31)[0] for x in s])
-    values = np.minimum(light + rng.normal(0.0, 0.004, s.size), 1.0)
-    values[light >= 1.0] = 1.0
-    basis = np.stack([np.ones_like(tau), tau, tau ** 2 - 1.0 / 3.0], axis=1)
-    common = dict(s=s, side=np.zeros(s.size, np.intp), n_sides=1, basis=basis,
-                  coef0=np.zeros((1, 3)), far=np.zeros((s.size, 1)),
-                  module_px=np.full(s.size, 50.0), fit_order=np.array([2]),
-                  normal=np.array([[0.95, 0.31]]), iterations=30, censor_at=0.999)
+    true_e, sigma, D = -0.31, 0.7, 5.0
+    values, common = _clipped_side(np.random.default_rng(5205), true_e, sigma, 0.04, D,
+                                   (0.95, 0.31), 0.004)
+    common["censor_at"] = 0.999
     contrast = np.zeros(1)
     coef, _, blur = fit_step_model(values, hold_blur=np.array([sigma]),
                                    hold_contrast=np.array([D]), contrast_out=contrast,
