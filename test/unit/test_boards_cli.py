@@ -79,18 +79,22 @@ def test_synth_detect_json_points_match_truth(tmp_path: Path, kind: str,
         assert (len(record["markers"]) > 0) == (kind == "charuco")
 
 
-def test_camera_calibration_size_and_square_calibrate_a_chessboard(tmp_path: Path) -> None:
-    board = Board(board_type="chessboard", cols=9, rows=6, square_length=0.04)
-    cam = Camera.preset("webcam")
-    truth = load_truth(write_dataset(board, cam, tmp_path / "data", frames=8, seed=3,
-                                     partial_fraction=0.0))
+def _calibrate_renders(tmp_path: Path, board: Board, frames: int, seed: int,
+                       options: list[str]) -> tuple[np.ndarray, np.ndarray]:
+    """``artcal calibrate`` of whole-board webcam renders with ``options``: the camera
+    matrix written, and the true one (both (3, 3), px)."""
+    truth = load_truth(write_dataset(board, Camera.preset("webcam"), tmp_path / "data",
+                                     frames=frames, seed=seed, partial_fraction=0.0))
     out = tmp_path / "cam.yaml"
     pngs = sorted(str(p) for p in (tmp_path / "data").glob("*.png"))
-    code = main(["calibrate", *pngs, "--size", "9x6", "--square", "0.04", "--output", str(out),
-                 "--quiet"])
-    assert code == 0
+    assert main(["calibrate", *pngs, *options, "--output", str(out), "--quiet"]) == 0
     K = np.array(yaml.safe_load(out.read_text())["camera_matrix"]["data"]).reshape(3, 3)
-    K_true = np.array(truth.camera.to_dict()["K"])
+    return K, np.array(truth.camera.to_dict()["K"])
+
+
+def test_camera_calibration_size_and_square_calibrate_a_chessboard(tmp_path: Path) -> None:
+    board = Board(board_type="chessboard", cols=9, rows=6, square_length=0.04)
+    K, K_true = _calibrate_renders(tmp_path, board, 8, 3, ["--size", "9x6", "--square", "0.04"])
     assert abs(K[0, 0] / K_true[0, 0] - 1) < 0.003
     assert abs(K[0, 2] - K_true[0, 2]) < 1.0
 
@@ -140,17 +144,9 @@ def test_live_collection_keeps_views_of_point_boards(tmp_path: Path, board: Boar
 def test_circle_grids_calibrate_through_the_cli(tmp_path: Path, kind: str) -> None:
     board = (Board(board_type="circles", cols=7, rows=5, square_length=0.04) if kind == "circles"
              else Board(board_type="acircles", cols=4, rows=11, square_length=0.03))
-    cam = Camera.preset("webcam")
-    truth = load_truth(write_dataset(board, cam, tmp_path / "data", frames=10, seed=5,
-                                     partial_fraction=0.0))
-    out, report = tmp_path / "cam.yaml", tmp_path / "report"
-    pngs = sorted(str(p) for p in (tmp_path / "data").glob("*.png"))
+    report = tmp_path / "report"
     sets = [x for k, v in board.to_params().items() for x in ("--set", f"{k}={v}")]
-    code = main(["calibrate", *pngs, *sets, "--output", str(out), "--report", str(report),
-                 "--quiet"])
-    assert code == 0
-    K = np.array(yaml.safe_load(out.read_text())["camera_matrix"]["data"]).reshape(3, 3)
-    K_true = np.array(truth.camera.to_dict()["K"])
+    K, K_true = _calibrate_renders(tmp_path, board, 10, 5, [*sets, "--report", str(report)])
     assert abs(K[0, 0] / K_true[0, 0] - 1) < 0.005
     assert abs(K[0, 2] - K_true[0, 2]) < 1.5
     summary = json.loads((report / "summary.json").read_text())
