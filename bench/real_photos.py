@@ -188,11 +188,14 @@ def diagonal_centers(corners: np.ndarray) -> np.ndarray:
 
 
 def calibrate_points(obj: list[np.ndarray], img: list[np.ndarray]) -> dict[str, Any]:
-    """cv2.calibrateCamera (plumb_bob, flags 0) on per-view (P, 3) / (P, 2) points."""
-    rms, K, dist, rvecs, tvecs = cv2.calibrateCamera(  # type: ignore[call-overload]
+    """cv2.calibrateCamera (plumb_bob, flags 0) on per-view (P, 3) / (P, 2) points, with
+    the solver's 1-sigma of fx and fy (``fx_sd``, ``fy_sd``, px)."""
+    rms, K, dist, rvecs, tvecs, sd, _, _ = cv2.calibrateCameraExtended(  # type: ignore[call-overload]
         [o.astype(np.float32) for o in obj], [i.astype(np.float32) for i in img],
         IMAGE_SIZE, None, None, flags=0)
+    sd = np.asarray(sd, np.float64).ravel()
     return {"rms": float(rms), "fx": K[0, 0], "fy": K[1, 1], "cx": K[0, 2], "cy": K[1, 2],
+            "fx_sd": float(sd[0]), "fy_sd": float(sd[1]),
             "K": K, "dist": dist.ravel(), "rvecs": rvecs, "tvecs": tvecs,
             "points": int(sum(len(i) for i in img))}
 
