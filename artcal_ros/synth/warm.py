@@ -18,6 +18,7 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector, detect
 from artcal_ros.core.detect.sampling import bilinear
+from artcal_ros.core.detect.step_model import pixel_esf
 from artcal_ros.core.detect.tracking import MarkerTracker
 from artcal_ros.synth.camera import Camera
 from artcal_ros.synth.photometry import Photometry
@@ -57,6 +58,8 @@ def warm() -> int:
     # float32 (a clean clone's test run compiled it after this warm-up).
     for dtype in (np.float32, np.float64):
         bilinear(np.zeros((8, 8), dtype), np.array([1.5]), np.array([2.5]))
+    # the pixel's edge-spread function called on its own (the renderer-free edge tests do)
+    pixel_esf(0.1, 0.6, 1.0, 0.0)
     return found
 
 
