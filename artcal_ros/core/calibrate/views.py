@@ -105,9 +105,11 @@ def layout_outliers(view: ViewPoints, board: Board) -> np.ndarray:
     """Markers whose image position disagrees with their neighbours' (before any solve).
 
     Each marker's image position is predicted by an affine map fitted to the markers
-    within two cells of it on the board; over so small a patch perspective and lens
+    within one cell of it on the board; over so small a patch perspective and lens
     distortion are nearly affine, so a marker off by more than a third of the local
-    marker pitch is misplaced or misidentified. Needs no camera model.
+    marker pitch is misplaced or misidentified. Needs no camera model. (Over two cells a
+    fisheye's or a strong barrel lens's close views bend the grid enough to flag true
+    markers, and whole true views as another board's.)
 
     Returns:
         (K,) bool over ``np.unique(view.marker_ids)``: True where the marker is an outlier
@@ -120,7 +122,7 @@ def layout_outliers(view: ViewPoints, board: Board) -> np.ndarray:
     pos /= np.bincount(inverse, minlength=k)[:, None]
     rc = board.feature_cells(ids).astype(np.float64).reshape(-1, 2)
     # One affine fit per marker, all at once: normal equations summed over neighbours.
-    near = np.max(np.abs(rc[:, None, :] - rc[None, :, :]), axis=2) <= 2
+    near = np.max(np.abs(rc[:, None, :] - rc[None, :, :]), axis=2) <= 1
     np.fill_diagonal(near, False)
     X = np.column_stack([rc[:, 1], rc[:, 0], np.ones(k)])
     XtX = np.einsum("mj,ja,jb->mab", near.astype(np.float64), X, X)
