@@ -92,3 +92,43 @@ def module_homographies(corners: np.ndarray, bits: int) -> np.ndarray:
     H[:, 2, 1] = h * s
     H[:, 2, 2] = 1.0
     return H
+
+
+def neighbour_misfit(points_px: np.ndarray, cells: np.ndarray, radius: int,
+                     use: np.ndarray | None = None) -> np.ndarray:
+    """(n,) how far each point lies from where its grid neighbours put it, in local pitches.
+
+    Each point is predicted by an affine map of the lattice cells fitted to the points of
+    ``use`` within ``radius`` cells of it (itself left out); over a small patch perspective
+    and lens are nearly affine, so a point off by a good part of the local pitch (the
+    square root of the map's determinant) is misplaced or misidentified.
+
+    Args:
+        points_px: (n, 2) image points, pixels.
+        cells: (n, 2) their lattice cells (row, column).
+        radius: neighbours within this many cells (Chebyshev distance).
+        use: (n,) bool, the points that may serve as neighbours (default: all).
+
+    Returns:
+        (n,) float; NaN where fewer than 4 neighbours serve or the map is degenerate.
+    """
+    n = len(points_px)
+    rc = np.asarray(cells, dtype=np.float64).reshape(-1, 2)
+    near = np.max(np.abs(rc[:, None, :] - rc[None, :, :]), axis=2) <= radius
+    np.fill_diagonal(near, False)
+    if use is not None:
+        near &= np.asarray(use, bool)[None, :]
+    # one affine fit per point, all at once: normal equations summed over neighbours
+    X = np.column_stack([rc[:, 1], rc[:, 0], np.ones(n)])
+    weights = near.astype(np.float64)
+    XtX = np.einsum("mj,ja,jb->mab", weights, X, X)
+    XtY = np.einsum("mj,ja,jb->mab", weights, X, np.asarray(points_px, dtype=np.float64))
+    enough = near.sum(axis=1) >= 4
+    XtX[~enough] = np.eye(3)
+    coef = np.linalg.solve(XtX + 1e-9 * np.eye(3), XtY)  # (n, 3, 2)
+    pitch_px = np.sqrt(np.abs(np.linalg.det(coef[:, :2, :])))
+    miss = np.linalg.norm(np.einsum("ma,mab->mb", X, coef) - points_px, axis=1)
+    with np.errstate(divide="ignore", invalid="ignore"):
+        out = miss / pitch_px
+    out[~enough | ~(pitch_px > 0)] = np.nan
+    return out

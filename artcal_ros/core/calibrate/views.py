@@ -19,6 +19,7 @@ from artcal_ros.core.calibrate.solve import ViewPoints
 from artcal_ros.core.camera import CameraModel
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import CalibrationError
+from artcal_ros.core.homography import neighbour_misfit
 
 # The view geometry (guessed camera, pose, coverage grid and threshold) is defined once, in
 # core.view_geometry, for the node's readiness and for the selection and checks here alike.
@@ -120,20 +121,8 @@ def layout_outliers(view: ViewPoints, board: Board) -> np.ndarray:
     pos = np.zeros((k, 2))
     np.add.at(pos, inverse, view.image_points)
     pos /= np.bincount(inverse, minlength=k)[:, None]
-    rc = board.feature_cells(ids).astype(np.float64).reshape(-1, 2)
-    # One affine fit per marker, all at once: normal equations summed over neighbours.
-    near = np.max(np.abs(rc[:, None, :] - rc[None, :, :]), axis=2) <= 1
-    np.fill_diagonal(near, False)
-    X = np.column_stack([rc[:, 1], rc[:, 0], np.ones(k)])
-    XtX = np.einsum("mj,ja,jb->mab", near.astype(np.float64), X, X)
-    XtY = np.einsum("mj,ja,jb->mab", near.astype(np.float64), X, pos)
-    enough = near.sum(axis=1) >= 4
-    XtX[~enough] = np.eye(3)
-    coef = np.linalg.solve(XtX + 1e-9 * np.eye(3), XtY)  # (k, 3, 2)
-    pitch_px = np.sqrt(np.abs(np.linalg.det(coef[:, :2, :])))
-    pred = np.einsum("ma,mab->mb", X, coef)
-    miss = np.linalg.norm(pred - pos, axis=1)
-    bad = enough & (pitch_px > 0) & (miss > LAYOUT_TOLERANCE * pitch_px)
+    misfit = neighbour_misfit(pos, board.feature_cells(ids).reshape(-1, 2), radius=1)
+    bad = np.nan_to_num(misfit, nan=0.0) > LAYOUT_TOLERANCE
     return bad
 
 

@@ -19,6 +19,7 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect.lens import Lens
+from artcal_ros.core.homography import neighbour_misfit
 
 
 def _blob_detectors() -> tuple[cv2.SimpleBlobDetector, ...]:
@@ -99,25 +100,12 @@ def misplaced(points_px: np.ndarray, cells: np.ndarray, tolerance: float = 0.3) 
     and lens are nearly affine. The worst point beyond ``tolerance`` local spacings is
     flagged and left out of its neighbours' fits, and so on until none is.
     """
-    n = len(points_px)
-    out = np.zeros(n, bool)
-    X = np.column_stack([cells[:, 1], cells[:, 0], np.ones(n)]).astype(np.float64)
-    near_all = np.abs(cells[:, None, :] - cells[None, :, :]).max(axis=2) <= 2
-    np.fill_diagonal(near_all, False)
-    for _ in range(n):
-        worst, worst_k = 1.0, -1
-        for k in np.flatnonzero(~out):
-            near = near_all[k] & ~out
-            if near.sum() < 4:
-                continue
-            coef = np.linalg.lstsq(X[near], points_px[near], rcond=None)[0]
-            pitch = np.sqrt(abs(np.linalg.det(coef[:2])))
-            miss = np.linalg.norm(X[k] @ coef - points_px[k]) / (tolerance * pitch + 1e-12)
-            if miss > worst:
-                worst, worst_k = miss, k
-        if worst_k < 0:
+    out = np.zeros(len(points_px), bool)
+    while True:
+        misfit = np.where(out, np.nan, neighbour_misfit(points_px, cells, radius=2, use=~out))
+        if not np.nan_to_num(misfit, nan=0.0).max(initial=0.0) > tolerance:
             break
-        out[worst_k] = True
+        out[np.nanargmax(misfit)] = True
     return out
 
 
