@@ -25,7 +25,7 @@ from artcal_ros.core.board import Board
 from artcal_ros.core.homography import apply_h, homographies
 
 __all__ = ["MarkerGrowth", "compensate", "marker_growth", "neighbourhood_shift_px",
-           "robust_shift_px", "view_shift_px"]
+           "robust_shift_px"]
 
 _NEIGHBOURS = ((0, 1), (1, 0), (0, -1), (-1, 0))
 # largest relative misfit of a neighbour's distance to the pitch (an edge shift of a
@@ -97,6 +97,18 @@ def marker_growth(ids: np.ndarray, corners_px: np.ndarray, centers_px: np.ndarra
     return MarkerGrowth(growth, px_per_m, H)
 
 
+def _outward_normals(quads: np.ndarray) -> np.ndarray:
+    """(N, 4, 2) unit normals of the sides of quads (N, 4, 2), side i from corner i to
+    i + 1, pointing away from the quad's centre."""
+    nxt = np.roll(quads, -1, axis=1)
+    tangent = nxt - quads
+    normal = np.stack([tangent[..., 1], -tangent[..., 0]], axis=-1)
+    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
+    centre = quads.mean(axis=1, keepdims=True)
+    normal *= np.sign(np.sum((0.5 * (quads + nxt) - centre) * normal, axis=-1, keepdims=True))
+    return normal
+
+
 def neighbourhood_shift_px(ids: np.ndarray, corners_px: np.ndarray, centers_px: np.ndarray,
                            board: Board) -> np.ndarray:
     """Each marker's edge shift read against the centres around it, pixels (outward positive).
@@ -153,12 +165,7 @@ def neighbourhood_shift_px(ids: np.ndarray, corners_px: np.ndarray, centers_px: 
     predicted = apply_h(H, np.broadcast_to(square, (len(H), 4, 2)).copy())
     predicted = predicted * scale[ok, None, None] + centers_px[ok, None, :]
     observed = corners_px[ok]
-    mid = 0.5 * (predicted + np.roll(predicted, -1, axis=1))
-    tangent = np.roll(predicted, -1, axis=1) - predicted
-    normal = np.stack([tangent[..., 1], -tangent[..., 0]], axis=-1)
-    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
-    centre = predicted.mean(axis=1, keepdims=True)
-    normal *= np.sign(np.sum((mid - centre) * normal, axis=-1, keepdims=True))
+    normal = _outward_normals(predicted)
     err = observed - predicted
     # a side's offset: the mean of its two corners' offsets along its normal
     off = 0.5 * (np.sum(err * normal, axis=-1)
@@ -180,18 +187,6 @@ def robust_shift_px(d: np.ndarray) -> tuple[float, float]:
     return float(np.mean(d[good])), float(np.std(d[good]) / np.sqrt(max(good.sum() - 1, 1)))
 
 
-def view_shift_px(g: MarkerGrowth, board: Board, *, print_growth: float = 0.0
-                  ) -> tuple[float, float]:
-    """The view's edge shift (outward positive) and its 1-sigma, pixels, from the markers'
-    growth against their neighbours (:func:`marker_growth`).
-
-    Args:
-        g: the view's :func:`marker_growth`.
-        print_growth: the print's own growth (0: the board as configured).
-    """
-    return robust_shift_px((g.growth - print_growth) * 0.5 * board.marker_length * g.px_per_m)
-
-
 def compensate(corners_px: np.ndarray, shift_px: float) -> np.ndarray:
     """(N, 4, 2) corners with the edge shift ``shift_px`` (outward positive) removed.
 
@@ -204,12 +199,7 @@ def compensate(corners_px: np.ndarray, shift_px: float) -> np.ndarray:
     q = np.asarray(corners_px, dtype=np.float64)
     if len(q) == 0 or shift_px == 0.0:
         return q
-    nxt = np.roll(q, -1, axis=1)
-    tangent = nxt - q
-    normal = np.stack([tangent[..., 1], -tangent[..., 0]], axis=-1)
-    normal /= np.linalg.norm(normal, axis=-1, keepdims=True)
-    centre = q.mean(axis=1, keepdims=True)
-    normal *= np.sign(np.sum((0.5 * (q + nxt) - centre) * normal, axis=-1, keepdims=True))
+    normal = _outward_normals(q)
     # side i runs from corner i to i+1: n_i . x = n_i . q_i - shift
     level = np.sum(normal * q, axis=-1) - shift_px
     prev_n, prev_c = np.roll(normal, 1, axis=1), np.roll(level, 1, axis=1)
