@@ -1,4 +1,5 @@
-"""Batched plane homographies for marker quads (shared by edge fitting, decoding and checks)."""
+"""Batched plane homographies for marker quads (shared by edge fitting, decoding and checks),
+and the local affine check of a grid's points against their neighbours."""
 
 from __future__ import annotations
 
