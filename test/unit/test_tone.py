@@ -101,6 +101,22 @@ def test_board_check(printed: Board, want_warning: bool) -> None:
     check = check_board(dets, BOARD, CAM)
     assert bool(check.warning) == want_warning, check.warning
     assert check.marker_separation == pytest.approx(printed.marker_separation, rel=0.005)
+    assert "ruler" in check.text()
+
+
+def test_page_printed_at_97_percent_reads_as_the_configured_board() -> None:
+    """A uniformly scaled page makes the configured page's images from further away: the
+    check reads the configured geometry (no alarm) and its text says a ruler is needed."""
+    page = Board(marker_length=0.97 * BOARD.marker_length,
+                 marker_separation=0.97 * BOARD.marker_separation)
+    det = Detector(BOARD)
+    rng = np.random.default_rng(4106)
+    dets = [det.detect(render_view(page, CAM, r, t, rng=rng).image)
+            for r, t in random_poses(page, CAM, 8, rng, partial_fraction=0.3)]
+    check = check_board(dets, BOARD, CAM)
+    assert check.warning == ""
+    assert check.marker_separation == pytest.approx(BOARD.marker_separation, rel=0.005)
+    assert "ruler" in check.text()
 
 
 def test_summary_json_has_tone_curve_and_board_check(tmp_path: Path) -> None:

@@ -66,7 +66,9 @@ class BoardCheck:
         state = "DIFFERS, see the warning" if self.warning else "matches the configuration"
         return (f"{state}: separation {self.marker_separation:.4f} m (marker length "
                 f"{self.marker_length:.4f} m, {self.views} views); edge shift "
-                f"{self.edge_shift_px:+.3f} px (median of the views, removed from the corners)")
+                f"{self.edge_shift_px:+.3f} px (median of the views, removed from the corners); "
+                "a page printed at another scale looks the same in every image: check one "
+                "marker's length with a ruler")
 
     def as_dict(self) -> dict[str, object]:
         """JSON-ready (``marker_length``, ``marker_separation``, ``warning`` and the rest)."""
