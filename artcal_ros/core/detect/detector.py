@@ -57,6 +57,7 @@ from artcal_ros.core.detect.edge_shift import (
     robust_shift_px,
 )
 from artcal_ros.core.detect.edges import EdgeFit, ProbeFit, refine_quads, same_edges
+from artcal_ros.core.detect.grid_search import grow
 from artcal_ros.core.detect.image import to_gray, to_gray8
 from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool, known_lens
 from artcal_ros.core.detect.patterns import inner_border_cells, outer_neighbours
@@ -265,9 +266,11 @@ class Detector:
         return _ToneProbe(self._tone_pool, curve)
 
     def _refine(self, lin: np.ndarray, quads: np.ndarray, dark: np.ndarray, ids: np.ndarray,
-                lens: Lens | None, probe: _ToneProbe | None, clipped: bool = False) -> EdgeFit:
+                lens: Lens | None, probe: _ToneProbe | None, clipped: bool = False,
+                pool: bool = True) -> EdgeFit:
         """The edge fit of every quad (:func:`refine_quads` with this detector's settings;
-        ``clipped``: saturated samples censored)."""
+        ``clipped``: saturated samples censored; ``pool``: the frame's lens evidence
+        joins the pool)."""
         return refine_quads(lin, quads, dark, self.board.bits, margin_px=self.config.margin_px,
                             curve_min_px=self.config.curve_min_px, passes=1,
                             allow_curvature=lens is None and self.config.estimate_lens,
@@ -277,9 +280,14 @@ class Detector:
                             quiet_modules=self._quiet_modules,
                             outer_same=self._outer_edges(ids),
                             beyond_modules=self._quiet_modules,
-                            lens_pool=self._lens_pool if self.config.pool_lens else None,
+                            lens_pool=self._lens_pool if self.config.pool_lens and pool
+                            else None,
                             tone_probe=probe,
                             censor_at=float(lin.max()) * 0.999 if clipped else None)
+
+    def _dark(self, ids: np.ndarray) -> np.ndarray:
+        """(N,) bool: the board prints these markers with a dark border."""
+        return np.array([not self.board.is_inverted(int(i)) for i in ids], bool)
 
     def _remove_edge_shift(self, corners: np.ndarray, centers: np.ndarray, ids: np.ndarray,
                            lens: Lens | None) -> tuple[np.ndarray, float]:
@@ -418,7 +426,17 @@ class Detector:
             ok |= (support == 0) & (errors <= self.config.max_bit_errors_isolated)
         ok &= support >= 0
         ok &= sides_are_edges(lin, corners, dark, bits, clipped=clipped)
+        rejected = corners[~ok], ids[~ok]
         corners, sigma, ids = corners[ok], sigma[ok], ids[ok]
+        if clipped and self.config.refine_edges and self.board.board_type == "marker_grid":
+            # blooming hides most small markers from the quad finder: look where the
+            # verified ones say the others are
+            ids, corners, sigma = grow(
+                lin, ids, corners, sigma, self.board, self._candidates.clipped_patterns,
+                lambda q, i: self._refine(lin, q, self._dark(i), i, lens, None, censor,
+                                          pool=False),
+                min_side_px=self.config.min_side_px,
+                tolerance=self.config.neighbour_tolerance, hints=rejected)
 
         centers, center_sigma = diagonal_centers(corners, sigma, lens)
         shift = float("nan")
