@@ -55,6 +55,7 @@ from artcal_ros.core.detect.edge_shift import (
     compensate,
     neighbourhood_shift_px,
     robust_shift_px,
+    toward_neighbourhood,
 )
 from artcal_ros.core.detect.edges import EdgeFit, ProbeFit, refine_quads, same_edges
 from artcal_ros.core.detect.grid_search import grow
@@ -290,7 +291,7 @@ class Detector:
         return np.array([not self.board.is_inverted(int(i)) for i in ids], bool)
 
     def _remove_edge_shift(self, corners: np.ndarray, centers: np.ndarray, ids: np.ndarray,
-                           lens: Lens | None) -> tuple[np.ndarray, float]:
+                           lens: Lens | None, clipped: bool = False) -> tuple[np.ndarray, float]:
         """The corners with the view's edge shift removed, and the shift (NaN: unknown), px.
 
         Measured and removed in undistorted pixels when a lens is known, so the
@@ -332,6 +333,8 @@ class Detector:
             # a move the lens magnified beyond any shift's size is not one (a fold)
             wild = ~(np.linalg.norm(q - corners, axis=-1) <= 4.0 * largest + 0.05).all(axis=1)
             q[wild] = corners[wild]
+        if clipped:
+            q = toward_neighbourhood(ids, corners, q, centers, self.board)
         return q, shift
 
     def detect(self, image: np.ndarray, camera: CameraModel | HasCamera | None = None, *,
@@ -444,7 +447,8 @@ class Detector:
         if (self.config.edge_shift and self.config.refine_edges
                 and self.board.board_type == "marker_grid"):
             corners, shift = self._remove_edge_shift(corners, centers, ids,
-                                                     lens if lens is not None else fit_lens)
+                                                     lens if lens is not None else fit_lens,
+                                                     clipped)
         order = np.argsort(ids)
         dets = Detections(ids[order], corners[order], centers[order], (w, h),
                           sigma[order], center_sigma[order], sharpness, source,
