@@ -110,10 +110,15 @@ class DetectorConfig:
         adaptive_window_max: largest adaptive-threshold window of the quad finder.
         edge_shift: measure each view's edge shift from its markers' size against
             their pitch and remove it from the corners
-            (:mod:`~artcal_ros.core.detect.edge_shift`).
+            (:mod:`~artcal_ros.core.detect.edge_shift`); in an over-exposed frame whose
+            sides scatter, also move the corners toward the sides placed by the
+            neighbours' centres (``toward_neighbourhood``).
         censor_clipped: in an over-exposed frame whose ink is still below 0.85 of
             saturation, fit the edges with the saturated pixels as censored data (they
             only say the light there reached full scale); see docs/tone.md.
+        grid_search: in an over-exposed frame, look for the markers the quad finder
+            missed where the verified ones place them on the board's grid
+            (:mod:`~artcal_ros.core.detect.grid_search`; marker grids only).
     """
 
     gamma: float = 0.0
@@ -132,6 +137,7 @@ class DetectorConfig:
     adaptive_window_max: int = 33
     edge_shift: bool = True
     censor_clipped: bool = True
+    grid_search: bool = True
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any]) -> DetectorConfig:
@@ -429,11 +435,12 @@ class Detector:
             ok |= (support == 0) & (errors <= self.config.max_bit_errors_isolated)
         ok &= support >= 0
         ok &= sides_are_edges(lin, corners, dark, bits, clipped=clipped)
-        rejected = corners[~ok], ids[~ok]
+        rejected = (corners[~ok], ids[~ok])
         corners, sigma, ids = corners[ok], sigma[ok], ids[ok]
-        if clipped and self.config.refine_edges and self.board.board_type == "marker_grid":
+        if (clipped and self.config.grid_search and self.config.refine_edges
+                and self.board.board_type == "marker_grid"):
             # blooming hides most small markers from the quad finder: look where the
-            # verified ones say the others are
+            # verified ones say the others are (docs/tone.md, "Clipped frames")
             ids, corners, sigma = grow(
                 lin, ids, corners, sigma, self.board, self._candidates.clipped_patterns,
                 lambda q, i: self._refine(lin, q, self._dark(i), i, lens, None, censor,

@@ -98,10 +98,12 @@ def marker_growth(ids: np.ndarray, corners_px: np.ndarray, centers_px: np.ndarra
 
 
 # scatter of a clipped frame's side offsets about their block's median up to which its
-# edges are trusted as fitted, px: on bench.exposure's webcam frames it is 0.014 - 0.039
-# px at exposures 1.47 - 6.36, where the censored fits are good, and 0.05 - 0.08 at 9.16,
-# 0.15 - 0.28 at 13.2, where they are not (set on the sweep's three poses)
+# edges are trusted as fitted, px: on bench.exposure's three webcam poses it is 0.020 -
+# 0.035 px at exposures 1.47 - 4.41, where the censored fits are good, 0.036 - 0.047 at
+# 6.36, 0.06 - 0.09 at 9.16 and 0.20 - 0.29 at 13.2, where they are not (set on them)
 _EDGE_SCATTER_PX = 0.04
+# a side's offset is smoothed over the markers up to this many cells away (5 x 5 block)
+_SMOOTH_CELLS = 2
 
 
 def _outward_normals(quads: np.ndarray) -> np.ndarray:
@@ -117,7 +119,7 @@ def _outward_normals(quads: np.ndarray) -> np.ndarray:
 
 
 def neighbourhood_corners(ids: np.ndarray, corners_px: np.ndarray, centers_px: np.ndarray,
-                          board: Board) -> np.ndarray:
+                          board: Board, radius: int = 1) -> np.ndarray:
     """Each marker's printed corners placed by the centres around it, pixels.
 
     The centres of the marker and of its neighbours in the 3 x 3 block of the grid (at
@@ -138,17 +140,19 @@ def neighbourhood_corners(ids: np.ndarray, corners_px: np.ndarray, centers_px: n
         return predicted
     k = np.asarray(ids) - board.first_id
     row, col = np.divmod(k, board.cols)
-    grid = np.full((board.rows + 2, board.cols + 2), -1)
-    grid[row + 1, col + 1] = np.arange(n)
+    r = radius
+    grid = np.full((board.rows + 2 * r, board.cols + 2 * r), -1)
+    grid[row + r, col + r] = np.arange(n)
     centers_px = np.asarray(centers_px, float)
     corners_px = np.asarray(corners_px, float)
     # per marker: image coordinates relative to its own centre, in units of its side
     scale = np.linalg.norm(np.roll(corners_px, -1, axis=1) - corners_px, axis=2).mean(axis=1)
     scale = np.where(scale > 0, scale, 1.0)
     rows = []
-    present = np.zeros((n, 9), bool)
-    for m, (dr, dc) in enumerate((a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)):
-        j = grid[row + 1 + dr, col + 1 + dc]
+    steps = range(-r, r + 1)
+    present = np.zeros((n, len(steps) ** 2), bool)
+    for m, (dr, dc) in enumerate((a, b) for a in steps for b in steps):
+        j = grid[row + r + dr, col + r + dc]
         present[:, m] = j >= 0
         uv = (centers_px[np.maximum(j, 0)] - centers_px) / scale[:, None]
         uv[j < 0] = 0.0
@@ -159,8 +163,8 @@ def neighbourhood_corners(ids: np.ndarray, corners_px: np.ndarray, centers_px: n
                     * present[:, m, None])
         rows.append(np.stack([zero, zero, zero, X * one, Y * one, one, -v * X, -v * Y, -v], 1)
                     * present[:, m, None])
-    A = np.stack(rows, axis=1)                         # (N, 18, 9)
-    ok = present.sum(axis=1) >= 5
+    A = np.stack(rows, axis=1)                         # (N, 2 B, 9), B cells in the block
+    ok = present.sum(axis=1) >= (2 * r + 1) ** 2 // 2 + 1
     if not ok.any():
         return predicted
     H = np.linalg.svd(A[ok])[2][:, -1, :].reshape(-1, 3, 3)
@@ -289,7 +293,8 @@ def toward_neighbourhood(ids: np.ndarray, raw_px: np.ndarray, corners_px: np.nda
     off = side_offsets_px(raw, placed)
     k = np.asarray(ids) - board.first_id
     row, col = np.divmod(k, board.cols)
-    block = (np.abs(row[:, None] - row[None]) <= 1) & (np.abs(col[:, None] - col[None]) <= 1)
+    block = ((np.abs(row[:, None] - row[None]) <= _SMOOTH_CELLS)
+             & (np.abs(col[:, None] - col[None]) <= _SMOOTH_CELLS))
     smooth = np.full((len(ids), 4), np.nan)
     for m in np.flatnonzero(have):
         smooth[m] = np.median(off[block[m] & have], axis=0)
