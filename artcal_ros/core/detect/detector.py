@@ -22,7 +22,9 @@ Pipeline for one image:
    must match the board, the code re-read on the refined quad must match the id
    (at most 2 wrong cells; none for a marker without neighbours), and the marker
    must sit where its image neighbours say it should on the board. A wrong id
-   cannot reach the solver.
+   cannot reach the solver. In an over-exposed frame the verified markers then
+   place the missing ones on the grid, and those whose code reads there are fitted
+   and checked too (:mod:`artcal_ros.core.detect.grid_search`).
 5. Centers (:mod:`artcal_ros.core.detect.centers`): the intersection of the
    refined quad's diagonals (exact under a pinhole projection). With a lens
    (given, or estimated and well determined) the corners are mapped to

@@ -2,16 +2,18 @@
 
 Once the paper clips far enough, blooming eats through the thin borders of small markers
 and the quad finder, which needs a closed dark contour, finds only a few of them. The
-markers it did find and that passed every check pin the board down locally: the
-homography from the board to the image fitted to the corners of the verified markers
-around a missing one (within two cells, at least three markers not all in one row or
-column) predicts its quad. A predicted quad is kept only when its module means, read
-there, correlate best with the expected id's pattern in its expected orientation among
-every id and rotation of the board (the patterns as a clipped sensor sees them,
-:func:`~artcal_ros.core.detect.patterns.clipped_patterns`), by a clear margin. The quads
-kept then go through the same edge fit and checks as the quad finder's.
+markers it did find and that passed every check pin the board down locally: a homography
+from the board to the image, fitted to the centres of the verified markers within two
+cells of a missing one (at least four; with only three, to their corners; never all in
+one row or column), predicts its quad. A predicted quad is kept only when its module
+means, read there, correlate best with the expected id's pattern in its expected
+orientation among every id and rotation of the board (the patterns as a clipped sensor
+sees them, :func:`~artcal_ros.core.detect.patterns.clipped_patterns`), by a clear margin.
+The quads kept then go through the same edge fit as the quad finder's, and the markers
+found predict more, round by round (:func:`grow`).
 
 Only the markers of a marker grid are predicted (their layout is one regular grid).
+See docs/tone.md, "Clipped frames".
 """
 
 from __future__ import annotations
