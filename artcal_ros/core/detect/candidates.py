@@ -121,7 +121,7 @@ class CandidateFinder:
         self.min_side_px = min_side_px
         self._aruco = _aruco_detector(board, adaptive_window_max)
         self._patterns = PatternTable(board, any_polarity=board.polarity == "any")
-        self._clipped_patterns = PatternTable(board, any_polarity=board.polarity == "any",
+        self.clipped_patterns = PatternTable(board, any_polarity=board.polarity == "any",
                                               clipped=True)
 
     def find(self, gray8: np.ndarray, lin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -136,7 +136,7 @@ class CandidateFinder:
         if bright is not None:
             # only ids the first pass lacks: the same marker read twice would be dropped
             # below as an id seen twice
-            bq, bids = self._pass(bright, lin, self._clipped_patterns)
+            bq, bids = self._pass(bright, lin, self.clipped_patterns)
             new = ~np.isin(bids, ids)
             quads = np.concatenate([quads, bq[new]])
             ids = np.concatenate([ids, bids[new]])

@@ -22,7 +22,9 @@ Pipeline for one image:
    must match the board, the code re-read on the refined quad must match the id
    (at most 2 wrong cells; none for a marker without neighbours), and the marker
    must sit where its image neighbours say it should on the board. A wrong id
-   cannot reach the solver.
+   cannot reach the solver. In an over-exposed frame the verified markers then
+   place the missing ones on the grid, and those whose code reads there are fitted
+   and checked too (:mod:`artcal_ros.core.detect.grid_search`).
 5. Centers (:mod:`artcal_ros.core.detect.centers`): the intersection of the
    refined quad's diagonals (exact under a pinhole projection). With a lens
    (given, or estimated and well determined) the corners are mapped to
@@ -55,8 +57,10 @@ from artcal_ros.core.detect.edge_shift import (
     compensate,
     neighbourhood_shift_px,
     robust_shift_px,
+    toward_neighbourhood,
 )
 from artcal_ros.core.detect.edges import EdgeFit, ProbeFit, refine_quads, same_edges
+from artcal_ros.core.detect.grid_search import grow
 from artcal_ros.core.detect.image import to_gray, to_gray8
 from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool, known_lens
 from artcal_ros.core.detect.patterns import inner_border_cells, outer_neighbours
@@ -108,10 +112,15 @@ class DetectorConfig:
         adaptive_window_max: largest adaptive-threshold window of the quad finder.
         edge_shift: measure each view's edge shift from its markers' size against
             their pitch and remove it from the corners
-            (:mod:`~artcal_ros.core.detect.edge_shift`).
+            (:mod:`~artcal_ros.core.detect.edge_shift`); in an over-exposed frame whose
+            sides scatter, also move the corners toward the sides placed by the
+            neighbours' centres (``toward_neighbourhood``).
         censor_clipped: in an over-exposed frame whose ink is still below 0.85 of
             saturation, fit the edges with the saturated pixels as censored data (they
             only say the light there reached full scale); see docs/tone.md.
+        grid_search: in an over-exposed frame, look for the markers the quad finder
+            missed where the verified ones place them on the board's grid
+            (:mod:`~artcal_ros.core.detect.grid_search`; marker grids only).
     """
 
     gamma: float = 0.0
@@ -130,6 +139,7 @@ class DetectorConfig:
     adaptive_window_max: int = 33
     edge_shift: bool = True
     censor_clipped: bool = True
+    grid_search: bool = True
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any]) -> DetectorConfig:
@@ -265,9 +275,11 @@ class Detector:
         return _ToneProbe(self._tone_pool, curve)
 
     def _refine(self, lin: np.ndarray, quads: np.ndarray, dark: np.ndarray, ids: np.ndarray,
-                lens: Lens | None, probe: _ToneProbe | None, clipped: bool = False) -> EdgeFit:
+                lens: Lens | None, probe: _ToneProbe | None, clipped: bool = False,
+                pool: bool = True) -> EdgeFit:
         """The edge fit of every quad (:func:`refine_quads` with this detector's settings;
-        ``clipped``: saturated samples censored)."""
+        ``clipped``: saturated samples censored; ``pool``: the frame's lens evidence
+        joins the pool)."""
         return refine_quads(lin, quads, dark, self.board.bits, margin_px=self.config.margin_px,
                             curve_min_px=self.config.curve_min_px, passes=1,
                             allow_curvature=lens is None and self.config.estimate_lens,
@@ -277,12 +289,17 @@ class Detector:
                             quiet_modules=self._quiet_modules,
                             outer_same=self._outer_edges(ids),
                             beyond_modules=self._quiet_modules,
-                            lens_pool=self._lens_pool if self.config.pool_lens else None,
+                            lens_pool=self._lens_pool if self.config.pool_lens and pool
+                            else None,
                             tone_probe=probe,
                             censor_at=float(lin.max()) * 0.999 if clipped else None)
 
+    def _dark(self, ids: np.ndarray) -> np.ndarray:
+        """(N,) bool: the board prints these markers with a dark border."""
+        return np.array([not self.board.is_inverted(int(i)) for i in ids], bool)
+
     def _remove_edge_shift(self, corners: np.ndarray, centers: np.ndarray, ids: np.ndarray,
-                           lens: Lens | None) -> tuple[np.ndarray, float]:
+                           lens: Lens | None, clipped: bool = False) -> tuple[np.ndarray, float]:
         """The corners with the view's edge shift removed, and the shift (NaN: unknown), px.
 
         Measured and removed in undistorted pixels when a lens is known, so the
@@ -324,6 +341,8 @@ class Detector:
             # a move the lens magnified beyond any shift's size is not one (a fold)
             wild = ~(np.linalg.norm(q - corners, axis=-1) <= 4.0 * largest + 0.05).all(axis=1)
             q[wild] = corners[wild]
+        if clipped:
+            q = toward_neighbourhood(ids, corners, q, centers, self.board)
         return q, shift
 
     def detect(self, image: np.ndarray, camera: CameraModel | HasCamera | None = None, *,
@@ -418,7 +437,18 @@ class Detector:
             ok |= (support == 0) & (errors <= self.config.max_bit_errors_isolated)
         ok &= support >= 0
         ok &= sides_are_edges(lin, corners, dark, bits, clipped=clipped)
+        rejected = (corners[~ok], ids[~ok])
         corners, sigma, ids = corners[ok], sigma[ok], ids[ok]
+        if (clipped and self.config.grid_search and self.config.refine_edges
+                and self.board.board_type == "marker_grid"):
+            # blooming hides most small markers from the quad finder: look where the
+            # verified ones say the others are (docs/tone.md, "Clipped frames")
+            ids, corners, sigma = grow(
+                lin, ids, corners, sigma, self.board, self._candidates.clipped_patterns,
+                lambda q, i: self._refine(lin, q, self._dark(i), i, lens, None, censor,
+                                          pool=False),
+                min_side_px=self.config.min_side_px,
+                tolerance=self.config.neighbour_tolerance, hints=rejected)
 
         centers, center_sigma = diagonal_centers(corners, sigma, lens)
         shift = float("nan")
@@ -426,7 +456,8 @@ class Detector:
         if (self.config.edge_shift and self.config.refine_edges
                 and self.board.board_type == "marker_grid"):
             corners, shift = self._remove_edge_shift(corners, centers, ids,
-                                                     lens if lens is not None else fit_lens)
+                                                     lens if lens is not None else fit_lens,
+                                                     clipped)
         order = np.argsort(ids)
         dets = Detections(ids[order], corners[order], centers[order], (w, h),
                           sigma[order], center_sigma[order], sharpness, source,

@@ -97,6 +97,15 @@ def marker_growth(ids: np.ndarray, corners_px: np.ndarray, centers_px: np.ndarra
     return MarkerGrowth(growth, px_per_m, H)
 
 
+# scatter of a clipped frame's side offsets about their block's median up to which its
+# edges are trusted as fitted, px: on bench.exposure's three webcam poses it is 0.020 -
+# 0.035 px at exposures 1.47 - 4.41, where the censored fits are good, 0.036 - 0.047 at
+# 6.36, 0.06 - 0.09 at 9.16 and 0.20 - 0.29 at 13.2, where they are not (set on them)
+_EDGE_SCATTER_PX = 0.04
+# a side's offset is smoothed over the markers up to this many cells away (5 x 5 block)
+_SMOOTH_CELLS = 2
+
+
 def _outward_normals(quads: np.ndarray) -> np.ndarray:
     """(N, 4, 2) unit normals of the sides of quads (N, 4, 2), side i from corner i to
     i + 1, pointing away from the quad's centre."""
@@ -109,41 +118,41 @@ def _outward_normals(quads: np.ndarray) -> np.ndarray:
     return normal
 
 
-def neighbourhood_shift_px(ids: np.ndarray, corners_px: np.ndarray, centers_px: np.ndarray,
-                           board: Board) -> np.ndarray:
-    """Each marker's edge shift read against the centres around it, pixels (outward positive).
+def neighbourhood_corners(ids: np.ndarray, corners_px: np.ndarray, centers_px: np.ndarray,
+                          board: Board, radius: int = 1) -> np.ndarray:
+    """Each marker's printed corners placed by the centres around it, pixels.
 
     The centres of the marker and of its neighbours in the 3 x 3 block of the grid (at
-    least 5 of the 9) give a homography board -> image (least squares); it places the
-    printed corners, and the mean over the four sides of the observed corners' offset
-    along the side's outward normal is the shift. The centres do not move with the
-    edges, and the corners are interpolated between them rather than a neighbour
-    extrapolated from the marker's own corners, so corner noise is not magnified.
+    least 5 of the 9) give a homography board -> image (least squares) that places the
+    marker's printed corners. The centres do not move with the edges.
 
     Args:
         ids: (N,) marker ids on ``board``.
-        corners_px: (N, 4, 2) corners, pixels, board order.
+        corners_px: (N, 4, 2) corners, pixels, board order (they set each block's scale).
         centers_px: (N, 2) centres, pixels.
 
     Returns:
-        (N,) shift, pixels; NaN for a marker with fewer than 5 centres in its block.
+        (N, 4, 2) corners, pixels; NaN for a marker with fewer than 5 centres in its block.
     """
     n = len(ids)
+    predicted = np.full((n, 4, 2), np.nan)
     if n == 0:
-        return np.zeros(0)
+        return predicted
     k = np.asarray(ids) - board.first_id
     row, col = np.divmod(k, board.cols)
-    grid = np.full((board.rows + 2, board.cols + 2), -1)
-    grid[row + 1, col + 1] = np.arange(n)
+    r = radius
+    grid = np.full((board.rows + 2 * r, board.cols + 2 * r), -1)
+    grid[row + r, col + r] = np.arange(n)
     centers_px = np.asarray(centers_px, float)
     corners_px = np.asarray(corners_px, float)
     # per marker: image coordinates relative to its own centre, in units of its side
     scale = np.linalg.norm(np.roll(corners_px, -1, axis=1) - corners_px, axis=2).mean(axis=1)
     scale = np.where(scale > 0, scale, 1.0)
     rows = []
-    present = np.zeros((n, 9), bool)
-    for m, (dr, dc) in enumerate((a, b) for a in (-1, 0, 1) for b in (-1, 0, 1)):
-        j = grid[row + 1 + dr, col + 1 + dc]
+    steps = range(-r, r + 1)
+    present = np.zeros((n, len(steps) ** 2), bool)
+    for m, (dr, dc) in enumerate((a, b) for a in steps for b in steps):
+        j = grid[row + r + dr, col + r + dc]
         present[:, m] = j >= 0
         uv = (centers_px[np.maximum(j, 0)] - centers_px) / scale[:, None]
         uv[j < 0] = 0.0
@@ -154,24 +163,49 @@ def neighbourhood_shift_px(ids: np.ndarray, corners_px: np.ndarray, centers_px: 
                     * present[:, m, None])
         rows.append(np.stack([zero, zero, zero, X * one, Y * one, one, -v * X, -v * Y, -v], 1)
                     * present[:, m, None])
-    A = np.stack(rows, axis=1)                         # (N, 18, 9)
-    ok = present.sum(axis=1) >= 5
-    shift = np.full(n, np.nan)
+    A = np.stack(rows, axis=1)                         # (N, 2 B, 9), B cells in the block
+    ok = present.sum(axis=1) >= (2 * r + 1) ** 2 // 2 + 1
     if not ok.any():
-        return shift
+        return predicted
     H = np.linalg.svd(A[ok])[2][:, -1, :].reshape(-1, 3, 3)
     h = 0.5 * board.marker_length / board.pitch
     square = np.array([[-h, -h], [h, -h], [h, h], [-h, h]])
-    predicted = apply_h(H, np.broadcast_to(square, (len(H), 4, 2)).copy())
-    predicted = predicted * scale[ok, None, None] + centers_px[ok, None, :]
-    observed = corners_px[ok]
-    normal = _outward_normals(predicted)
-    err = observed - predicted
-    # a side's offset: the mean of its two corners' offsets along its normal
-    off = 0.5 * (np.sum(err * normal, axis=-1)
-                 + np.sum(np.roll(err, -1, axis=1) * normal, axis=-1))
-    shift[ok] = off.mean(axis=1)
-    return shift
+    p = apply_h(H, np.broadcast_to(square, (len(H), 4, 2)).copy())
+    predicted[ok] = p * scale[ok, None, None] + centers_px[ok, None, :]
+    return predicted
+
+
+def side_offsets_px(corners_px: np.ndarray, predicted_px: np.ndarray) -> np.ndarray:
+    """(N, 4) offset of each observed side from the predicted one along its outward
+    normal (side i from corner i to i + 1), pixels: the mean of its two corners' offsets."""
+    normal = _outward_normals(predicted_px)
+    err = corners_px - predicted_px
+    return 0.5 * (np.sum(err * normal, axis=-1)
+                  + np.sum(np.roll(err, -1, axis=1) * normal, axis=-1))
+
+
+def neighbourhood_shift_px(ids: np.ndarray, corners_px: np.ndarray, centers_px: np.ndarray,
+                           board: Board) -> np.ndarray:
+    """Each marker's edge shift read against the centres around it, pixels (outward positive).
+
+    :func:`neighbourhood_corners` places the marker's printed corners from the centres
+    of its 3 x 3 block; the mean over the four sides of the observed sides' offsets
+    along their outward normals is the shift. The corners are interpolated between the
+    centres rather than a neighbour extrapolated from the marker's own corners, so corner
+    noise is not magnified.
+
+    Args:
+        ids: (N,) marker ids on ``board``.
+        corners_px: (N, 4, 2) corners, pixels, board order.
+        centers_px: (N, 2) centres, pixels.
+
+    Returns:
+        (N,) shift, pixels; NaN for a marker with fewer than 5 centres in its block.
+    """
+    if len(ids) == 0:
+        return np.zeros(0)
+    predicted = neighbourhood_corners(ids, corners_px, centers_px, board)
+    return side_offsets_px(np.asarray(corners_px, float), predicted).mean(axis=1)
 
 
 def robust_shift_px(d: np.ndarray) -> tuple[float, float]:
@@ -199,6 +233,19 @@ def compensate(corners_px: np.ndarray, shift_px: float) -> np.ndarray:
     q = np.asarray(corners_px, dtype=np.float64)
     if len(q) == 0 or shift_px == 0.0:
         return q
+    out = compensate_sides(q, np.full(q.shape[:2], float(shift_px)))
+    # a corner sharper than about 30 degrees would move more than 4 shifts: a quad that
+    # degenerated (e.g. far out in a fisheye's undistorted coordinates) keeps its corners
+    moved = np.linalg.norm(out - q, axis=-1)
+    bad = ~(moved <= 4.0 * abs(shift_px)).all(axis=1)
+    out[bad] = q[bad]
+    return out
+
+
+def compensate_sides(quads: np.ndarray, shift_px: np.ndarray) -> np.ndarray:
+    """(N, 4, 2) quads with each side moved inward by its own ``shift_px`` (N, 4)
+    (outward positive; side i from corner i to i + 1) and adjacent sides intersected."""
+    q = np.asarray(quads, dtype=np.float64)
     normal = _outward_normals(q)
     # side i runs from corner i to i+1: n_i . x = n_i . q_i - shift
     level = np.sum(normal * q, axis=-1) - shift_px
@@ -208,10 +255,56 @@ def compensate(corners_px: np.ndarray, shift_px: float) -> np.ndarray:
     with np.errstate(divide="ignore", invalid="ignore"):
         x = (prev_c * normal[..., 1] - level * prev_n[..., 1]) / det
         y = (prev_n[..., 0] * level - normal[..., 0] * prev_c) / det
-    out = np.stack([x, y], axis=-1)
-    # a corner sharper than about 30 degrees would move more than 4 shifts: a quad that
-    # degenerated (e.g. far out in a fisheye's undistorted coordinates) keeps its corners
-    moved = np.linalg.norm(out - q, axis=-1)
-    bad = ~(moved <= 4.0 * abs(shift_px)).all(axis=1)
-    out[bad] = q[bad]
+    return np.stack([x, y], axis=-1)
+
+
+def toward_neighbourhood(ids: np.ndarray, raw_px: np.ndarray, corners_px: np.ndarray,
+                         centers_px: np.ndarray, board: Board) -> np.ndarray:
+    """A clipped frame's corners moved toward sides placed by the neighbours, when its
+    edges scatter.
+
+    Once the paper clips far, each side's fit carries its own shift (how much of its
+    transition is left unclipped, how far blooming ate into it), which one shift per view
+    cannot remove. Each side's offset along its normal from the side placed by the centres
+    of its marker's 3 x 3 block (:func:`neighbourhood_corners`, :func:`side_offsets_px`)
+    is replaced by the median of that side's offsets over the markers of the block: the
+    placed sides' own error (the interpolation in a distorted image) varies smoothly over
+    the image and stays, the scatter of single edges is averaged down. The scatter of the
+    offsets about those medians (robust, over the view) measures the edges' noise; the
+    corners are averaged with the smoothed ones with weight ``1 - (s0 / scatter)^2``
+    (none below ``s0`` = :data:`_EDGE_SCATTER_PX`).
+
+    Args:
+        ids: (N,) marker ids on ``board``.
+        raw_px: (N, 4, 2) the fitted corners, pixels.
+        corners_px: (N, 4, 2) the same with the view's shift removed, pixels.
+        centers_px: (N, 2) centres, pixels.
+
+    Returns:
+        (N, 4, 2) corners, pixels (``corners_px`` where fewer than 5 centres place a
+        marker's corners, or the view has fewer than 4 such markers).
+    """
+    out = np.array(corners_px, float)
+    raw = np.asarray(raw_px, float)
+    placed = neighbourhood_corners(ids, raw, centers_px, board)
+    have = np.isfinite(placed).all(axis=(1, 2))
+    if have.sum() < 4:
+        return out
+    off = side_offsets_px(raw, placed)
+    k = np.asarray(ids) - board.first_id
+    row, col = np.divmod(k, board.cols)
+    block = ((np.abs(row[:, None] - row[None]) <= _SMOOTH_CELLS)
+             & (np.abs(col[:, None] - col[None]) <= _SMOOTH_CELLS))
+    smooth = np.full((len(ids), 4), np.nan)
+    for m in np.flatnonzero(have):
+        smooth[m] = np.median(off[block[m] & have], axis=0)
+    r = (off - smooth)[have]
+    scatter = 1.4826 * float(np.median(np.abs(r - np.median(r))))
+    w = max(0.0, 1.0 - (_EDGE_SCATTER_PX / max(scatter, 1e-9)) ** 2)
+    if w == 0.0:
+        return out
+    # the placed sides moved out by the smoothed offsets, adjacent ones intersected, and
+    # the view's shift removed as from the fitted corners
+    moved = compensate_sides(placed[have], -smooth[have])
+    out[have] = (1.0 - w) * out[have] + w * (moved + out[have] - raw[have])
     return out
