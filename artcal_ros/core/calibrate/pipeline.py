@@ -22,6 +22,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from artcal_ros.core.board import Board
+from artcal_ros.core.calibrate.lm import reweighted
 from artcal_ros.core.calibrate.model import TIED_FOCAL
 from artcal_ros.core.calibrate.quality import (
     cross_validate,
@@ -62,6 +63,7 @@ OUTLIER_SIGMAS = 5.0  # a point further than this many robust sigmas from its pr
 OUTLIER_FLOOR_PX = 0.5  # ... and at least this far is an outlier
 VIEW_OUTLIER_FACTOR = 3.0  # a view whose RMS exceeds this many times the median view's
 VIEW_OUTLIER_FRACTION = 0.25  # or with more than this share of outlier points is dropped
+REWEIGHT_ROUNDS = 2  # weighted solves re-scale the sigmas to the residuals this often
 MAX_RMS_PX = 1.0  # above this (x image diagonal / 1000, if larger) the board description
 # or the lens model is wrong: good detections fit to a few tenths of a pixel
 
@@ -283,6 +285,14 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         say(f"re-solving without outliers ({len(views)} views, {points_dropped} points dropped)")
         sol, _ = solve(views, size, model, options=options, initial=sol, weighted=weighted,
                        poses=_poses_of(views, previous, sol))
+    if weighted:
+        # The detector's sigmas re-scaled to the residuals (per view, then Huber per
+        # point), measured each round against the detector's own sigmas.
+        measured = views
+        for _round in range(REWEIGHT_ROUNDS):
+            views = reweighted(measured, residuals(views, sol))
+            sol, _ = solve(views, size, model, options=options, initial=sol, weighted=True,
+                           poses=(sol.rvecs, sol.tvecs))
     res = residuals(views, sol)
     rms, std, worst = _stats(res)
     _sanity(sol, views, size, rms, board)
