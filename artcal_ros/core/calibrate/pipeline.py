@@ -9,9 +9,11 @@
 The pipeline: correspondences per view (marker centres or corners; partial views are
 fine) -> unusable views set aside with the reason -> at most ``max_views`` diverse views
 kept -> degeneracy checks -> OpenCV solve -> outlier views, then outlier points, dropped
-and the solve repeated -> sanity checks (a camera that cannot be right is an error, never
-a result) -> uncertainty of every parameter, k-fold hold-out error and warnings where the
-data cannot pin a parameter down.
+and the solve repeated -> with the detector's sigmas, the weights re-scaled to the
+residuals (each view's sigmas by the factor its residuals show, then Huber's weight per
+point; :func:`~artcal_ros.core.calibrate.lm.reweighted`) and the solve repeated -> sanity
+checks (a camera that cannot be right is an error, never a result) -> uncertainty of every
+parameter, k-fold hold-out error and warnings where the data cannot pin a parameter down.
 """
 
 from __future__ import annotations
@@ -211,7 +213,8 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         k3: deprecated, the same as ``k_coefficients=3`` for plumb_bob.
         cross_validation_folds: folds of the hold-out error (0 to skip it).
         weighted: weight each point by the detector's 1/sigma^2 where it gives sigmas
-            (``corner_sigma_px``/``center_sigma_px``); views without them weigh alike.
+            (``corner_sigma_px``/``center_sigma_px``), re-scaled to the residuals (per
+            view, and Huber's weight per point); views without them weigh alike.
         progress: called with a short message at each stage.
 
     Returns:
