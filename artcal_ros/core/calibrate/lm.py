@@ -42,13 +42,14 @@ def view_sigma_factors(views: list[ViewPoints], res: list[np.ndarray], *,
     small (dim, defocused or compressed frames, close views of few large markers) show it
     in their residuals. Factors are relative to the median view's (a common factor changes
     no solve) and clipped to ``bounds``; views with fewer than ``min_points`` points or
-    without sigmas keep 1.
+    without sigmas (None or all NaN) keep 1.
 
     Args:
         views: the views of a weighted solve; res: their residuals, (M, 2) pixels each.
     """
     out = np.ones(len(views))
-    known = np.array([v.sigma_px is not None and len(v) >= min_points for v in views])
+    known = np.array([v.sigma_px is not None and bool(np.isfinite(v.sigma_px).any())
+                      and len(v) >= min_points for v in views])
     for k in np.flatnonzero(known):
         chi2 = float(np.sum(point_weights(views[k]) * np.sum(np.asarray(res[k]) ** 2, axis=1)))
         out[k] = np.sqrt(chi2 / (2 * len(views[k]) - 6))
