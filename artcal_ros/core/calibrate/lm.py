@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 
 from artcal_ros.core.calibrate.model import (
@@ -27,6 +29,61 @@ def point_weights(view: ViewPoints) -> np.ndarray:
         return np.ones(len(view))
     w = np.where(known, 1.0 / np.where(known, sigma, 1.0) ** 2, np.nan)
     return np.where(known, w, float(np.median(w[known])))
+
+
+def view_sigma_factors(views: list[ViewPoints], res: list[np.ndarray], *,
+                       min_points: int = 8,
+                       bounds: tuple[float, float] = (0.5, 3.0)) -> np.ndarray:
+    """(V,) factor by which each view's sigmas are off, from a weighted solve's residuals.
+
+    A per-view variance component: the view's weighted squared residuals over its degrees
+    of freedom (2 M coordinates less the 6 of its pose) estimate the square of the factor.
+    The detector's sigmas come from each side's fit alone; the views where they are too
+    small (dim, defocused or compressed frames, close views of few large markers) show it
+    in their residuals. Factors are relative to the median view's (a common factor changes
+    no solve) and clipped to ``bounds``; views with fewer than ``min_points`` points or
+    without sigmas (None or all NaN) keep 1.
+
+    Args:
+        views: the views of a weighted solve; res: their residuals, (M, 2) pixels each.
+    """
+    out = np.ones(len(views))
+    known = np.array([v.sigma_px is not None and bool(np.isfinite(v.sigma_px).any())
+                      and len(v) >= min_points for v in views])
+    for k in np.flatnonzero(known):
+        chi2 = float(np.sum(point_weights(views[k]) * np.sum(np.asarray(res[k]) ** 2, axis=1)))
+        out[k] = np.sqrt(chi2 / (2 * len(views[k]) - 6))
+    if known.any():
+        out[known] /= float(np.median(out[known]))
+    return np.clip(out, *bounds)
+
+
+def reweighted(views: list[ViewPoints], res: list[np.ndarray], *,
+               huber: float = 1.5) -> list[ViewPoints]:
+    """The views with their sigmas re-scaled to a weighted solve's residuals ``res``.
+
+    Each view's sigmas are multiplied by its :func:`view_sigma_factors` factor; then a
+    point whose residual exceeds ``huber`` times that sigma (per axis) has its sigma grown
+    by sqrt(z / huber), z its residual in sigmas: Huber's weight, so a corner the detector
+    misjudged pulls the solve linearly, not quadratically. Views without sigmas are
+    returned as they are.
+
+    Args:
+        views: the views of a weighted solve, with the detector's sigmas (not re-scaled
+            ones: the factors are measured against the sigmas given); res: their
+            residuals, (M, 2) pixels each.
+    """
+    factors = view_sigma_factors(views, res)
+    out = []
+    for v, r, f in zip(views, res, factors, strict=True):
+        if v.sigma_px is None:
+            out.append(v)
+            continue
+        sigma = np.asarray(v.sigma_px, dtype=np.float64) * f
+        z = np.linalg.norm(r, axis=1) / (np.sqrt(2.0) * np.maximum(sigma, 0.01))
+        grow = np.sqrt(np.maximum(np.nan_to_num(z) / huber, 1.0))
+        out.append(replace(v, sigma_px=sigma * grow))
+    return out
 
 
 def bundle_adjust(views: list[ViewPoints], K0: np.ndarray, D0: np.ndarray, model: str,

@@ -9,9 +9,11 @@
 The pipeline: correspondences per view (marker centres or corners; partial views are
 fine) -> unusable views set aside with the reason -> at most ``max_views`` diverse views
 kept -> degeneracy checks -> OpenCV solve -> outlier views, then outlier points, dropped
-and the solve repeated -> sanity checks (a camera that cannot be right is an error, never
-a result) -> uncertainty of every parameter, k-fold hold-out error and warnings where the
-data cannot pin a parameter down.
+and the solve repeated -> with the detector's sigmas, the weights re-scaled to the
+residuals (each view's sigmas by the factor its residuals show, then Huber's weight per
+point; :func:`~artcal_ros.core.calibrate.lm.reweighted`) and the solve repeated -> sanity
+checks (a camera that cannot be right is an error, never a result) -> uncertainty of every
+parameter, k-fold hold-out error and warnings where the data cannot pin a parameter down.
 """
 
 from __future__ import annotations
@@ -22,6 +24,7 @@ from collections.abc import Callable, Sequence
 import numpy as np
 
 from artcal_ros.core.board import Board
+from artcal_ros.core.calibrate.lm import reweighted
 from artcal_ros.core.calibrate.model import TIED_FOCAL
 from artcal_ros.core.calibrate.quality import (
     cross_validate,
@@ -62,6 +65,7 @@ OUTLIER_SIGMAS = 5.0  # a point further than this many robust sigmas from its pr
 OUTLIER_FLOOR_PX = 0.5  # ... and at least this far is an outlier
 VIEW_OUTLIER_FACTOR = 3.0  # a view whose RMS exceeds this many times the median view's
 VIEW_OUTLIER_FRACTION = 0.25  # or with more than this share of outlier points is dropped
+REWEIGHT_ROUNDS = 2  # weighted solves re-scale the sigmas to the residuals this often
 MAX_RMS_PX = 1.0  # above this (x image diagonal / 1000, if larger) the board description
 # or the lens model is wrong: good detections fit to a few tenths of a pixel
 
@@ -209,7 +213,8 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         k3: deprecated, the same as ``k_coefficients=3`` for plumb_bob.
         cross_validation_folds: folds of the hold-out error (0 to skip it).
         weighted: weight each point by the detector's 1/sigma^2 where it gives sigmas
-            (``corner_sigma_px``/``center_sigma_px``); views without them weigh alike.
+            (``corner_sigma_px``/``center_sigma_px``), re-scaled to the residuals (per
+            view, and Huber's weight per point); views without them weigh alike.
         progress: called with a short message at each stage.
 
     Returns:
@@ -283,6 +288,14 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         say(f"re-solving without outliers ({len(views)} views, {points_dropped} points dropped)")
         sol, _ = solve(views, size, model, options=options, initial=sol, weighted=weighted,
                        poses=_poses_of(views, previous, sol))
+    if weighted:
+        # The detector's sigmas re-scaled to the residuals (per view, then Huber per
+        # point), measured each round against the detector's own sigmas.
+        measured = views
+        for _round in range(REWEIGHT_ROUNDS):
+            views = reweighted(measured, residuals(views, sol))
+            sol, _ = solve(views, size, model, options=options, initial=sol, weighted=True,
+                           poses=(sol.rvecs, sol.tvecs))
     res = residuals(views, sol)
     rms, std, worst = _stats(res)
     _sanity(sol, views, size, rms, board)
