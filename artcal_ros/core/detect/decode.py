@@ -28,7 +28,7 @@ from artcal_ros.core.detect.sampling import (
 )
 from artcal_ros.core.homography import module_homographies
 
-__all__ = ["PatternTable", "blurred_patterns", "decode_quads"]
+__all__ = ["PatternTable", "blurred_patterns", "decode_quads", "pattern_correlations"]
 
 
 class PatternTable:
@@ -73,6 +73,24 @@ def _tables(board: Board, any_polarity: bool, clipped: bool = False
     for a in (ids, flat, unit):
         a.flags.writeable = False
     return ids, flat, unit, blurred.shape[1], n
+
+
+def pattern_correlations(vals: np.ndarray, table: PatternTable, roll: int) -> np.ndarray:
+    """(R, N) correlation of R module grids with each of the table's N ids' patterns.
+
+    Args:
+        vals: (R, n, n) module means of R quads.
+        table: the board's patterns (at a few blur levels; the best level counts).
+        roll: the grids are turned by this many quarter turns first.
+    """
+    R, n = vals.shape[0], vals.shape[1]
+    v = np.rot90(vals, k=roll, axes=(1, 2)).reshape(R, n * n)
+    v = v - v.mean(axis=1, keepdims=True)
+    v = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
+    # einsum, not BLAS: a threaded GEMM of this size spends more time waking its
+    # threads than computing (tens of ms on a busy machine instead of ~1 ms)
+    return np.asarray(np.einsum("rk,nk->rn", v.astype(np.float32), table.unit
+                                ).reshape(R, len(table.ids), table.levels).max(axis=2))
 
 
 def decode_quads(lin: np.ndarray, quads: np.ndarray, table: PatternTable, *,
@@ -142,15 +160,8 @@ def decode_quads(lin: np.ndarray, quads: np.ndarray, table: PatternTable, *,
     second_corr: np.ndarray = np.full(R, -1.0)
     corr_id: np.ndarray = np.zeros(R, dtype=np.int64)
     corr_roll: np.ndarray = np.zeros(R, dtype=np.intp)
-    N = len(table.ids)
     for roll in range(4):
-        v = np.rot90(vals, k=roll, axes=(1, 2)).reshape(R, n * n)
-        v = v - v.mean(axis=1, keepdims=True)
-        v = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
-        # einsum, not BLAS: a threaded GEMM of this size spends more time waking its
-        # threads than computing (tens of ms on a busy machine instead of ~1 ms)
-        corr = np.einsum("rk,nk->rn", v.astype(np.float32), table.unit
-                         ).reshape(R, N, table.levels).max(axis=2)
+        corr = pattern_correlations(vals, table, roll)
         j = np.argmax(corr, axis=1)
         cbest = corr[np.arange(R), j]
         corr[np.arange(R), j] = -1.0

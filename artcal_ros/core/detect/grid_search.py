@@ -25,7 +25,7 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect.centers import diagonal_centers
-from artcal_ros.core.detect.decode import PatternTable
+from artcal_ros.core.detect.decode import PatternTable, pattern_correlations
 from artcal_ros.core.detect.edges import EdgeFit, same_edges
 from artcal_ros.core.detect.sampling import cell_means, module_grid
 from artcal_ros.core.detect.verify import neighbour_support
@@ -117,17 +117,12 @@ def matches_expected(lin: np.ndarray, quads: np.ndarray, ids: np.ndarray,
     n = table.n
     H = module_homographies(quads, n - 2)
     vals = cell_means(lin, H, module_grid(n, 0.22)).reshape(P, n, n)
-    N = len(table.ids)
     own = np.full(P, -1.0)
     other = np.full(P, -1.0)
     # the table lists the board's ids in order first (then, for any polarity, inverted)
     index = np.asarray(ids, np.int64) - int(table.ids[0])
     for roll in range(4):
-        v = np.rot90(vals, k=roll, axes=(1, 2)).reshape(P, n * n)
-        v = v - v.mean(axis=1, keepdims=True)
-        v = v / np.maximum(np.linalg.norm(v, axis=1, keepdims=True), 1e-12)
-        corr = np.einsum("rk,nk->rn", v.astype(np.float32), table.unit
-                         ).reshape(P, N, table.levels).max(axis=2)
+        corr = pattern_correlations(vals, table, roll)
         if roll == 0:
             own = corr[np.arange(P), index]
             corr[np.arange(P), index] = -1.0
