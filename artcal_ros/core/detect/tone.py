@@ -8,8 +8,10 @@ asymmetric (the dark and the light half of the transition disagree) and the
 step model fits it worse. The pilot sides of a frame's edge fit are re-fitted
 through a grid of candidate curves (power laws ``linear = v ** gamma`` from 1
 to 2.8, and the sRGB curve); each candidate's residual, relative to each side's
-contrast, is pooled over the frames of one camera (:class:`TonePool`), and the
-best fit is the minimum of a parabola through the pooled costs.
+contrast, is summed over the sides whose step every re-fit still sees
+(:func:`sound_sides`), pooled over the frames of one camera in units of each
+frame's own residual level (:class:`TonePool`), and the best fit is the minimum of
+a parabola through the pooled costs.
 
 The curve the detector then *uses* is the common gamma 2.2 unless the evidence
 against it is strong: its cost more than :data:`SWITCH_COST` above the best
