@@ -70,6 +70,7 @@ from artcal_ros.core.detect.tone import (
     ToneCurve,
     ToneEstimate,
     TonePool,
+    differs,
     probe_costs,
 )
 from artcal_ros.core.detect.verify import code_errors, neighbour_support, sides_are_edges
@@ -191,18 +192,9 @@ class _ToneProbe:
         pick = np.linspace(0, len(fit.sides) - 1, min(len(fit.sides), _PROBE_SIDES))
         sides = fit.sides[pick.astype(int)]
         fit_values, values = fit.subset(sides, copies=len(CANDIDATES))
-        costs = probe_costs(fit_values, values, sides, self.curve, fit.coef, fit.blur)
-        self.pool.add(costs, len(values), len(sides))
-
-
-def _differs(a: ToneCurve, b: ToneCurve) -> bool:
-    """Two curves far enough apart that the edges are worth fitting again.
-
-    (0.12 in gamma moves a sharp edge by about 0.02 px; sRGB and gamma 2.2 differ
-    only in the darkest tenth, where no edge's transition is read, so sRGB counts as
-    its effective gamma 2.2.)
-    """
-    return abs(a.gamma - b.gamma) > 0.12
+        costs, sound = probe_costs(fit_values, values, sides, self.curve, fit.coef, fit.blur)
+        counts = np.bincount(np.asarray(fit.common["side"]), minlength=len(fit.coef))[sides]
+        self.pool.add(costs, int(counts[sound].sum()), int(sound.sum()))
 
 
 def _clear_of_edge(corners: np.ndarray, w: int, h: int, clear: float) -> np.ndarray:
@@ -407,7 +399,7 @@ class Detector:
             if probe is not None:
                 probe.commit()
                 better = self._tone_pool.estimate().curve
-                if _differs(better, curve):
+                if differs(better, curve):
                     # this frame's edges again through the better curve (its lens
                     # evidence replaces, not joins, that of the first fit)
                     vars(self._lens_pool).update(lens_state)

@@ -8,8 +8,10 @@ asymmetric (the dark and the light half of the transition disagree) and the
 step model fits it worse. The pilot sides of a frame's edge fit are re-fitted
 through a grid of candidate curves (power laws ``linear = v ** gamma`` from 1
 to 2.8, and the sRGB curve); each candidate's residual, relative to each side's
-contrast, is pooled over the frames of one camera (:class:`TonePool`), and the
-best fit is the minimum of a parabola through the pooled costs.
+contrast, is summed over the sides whose step every re-fit still sees
+(:func:`sound_sides`), pooled over the frames of one camera in units of each
+frame's own residual level (:class:`TonePool`), and the best fit is the minimum of
+a parabola through the pooled costs.
 
 The curve the detector then *uses* is the common gamma 2.2 unless the evidence
 against it is strong: its cost more than :data:`SWITCH_COST` above the best
@@ -33,7 +35,8 @@ from functools import lru_cache
 
 import numpy as np
 
-__all__ = ["GAMMA_GRID", "ToneCurve", "ToneEstimate", "TonePool", "probe_costs"]
+__all__ = ["GAMMA_GRID", "ToneCurve", "ToneEstimate", "TonePool", "differs", "probe_costs",
+           "sound_sides"]
 
 # the power laws every probe re-fits (sRGB is probed as well)
 GAMMA_GRID: tuple[float, ...] = (1.0, 1.6, 2.2, 2.8)
@@ -47,6 +50,9 @@ SWITCH_GAMMA = 0.4
 # (a blur applied after the encoding), make edges look more linear than they are; single
 # dim, defocused JPEG frames of a gamma 2.2 camera have fitted 1.46
 SWITCH_GAMMA_BELOW = 0.85
+# a probed side counts only where each candidate's re-fit keeps this share of the
+# frame's median contrast (see sound_sides)
+MIN_CONTRAST_SHARE = 0.25
 # the best fit's systematic error on renders (see the module docstring), 1-sigma
 _SYSTEMATIC_SIGMA = 0.15
 
@@ -157,14 +163,24 @@ class ToneEstimate:
 class TonePool:
     """Step-model costs of the candidate tone curves, pooled over the frames of one camera.
 
+    Each frame's costs enter relative to its own best candidate's, times its sides:
+    a side's squared residuals relative to its contrast measure its noise as well as
+    the curve's misfit, so summed as they are a dim, noisy frame's costs would be
+    several times a bright frame's and decide the pool, although its residuals say
+    least about the curve. Divided by the frame's lowest cost (its residual level per
+    side) they are in units of that frame's noise, and a frame counts by how sharply
+    its costs single out a curve.
+
     Attributes:
-        costs: (C,) summed contrast-relative squared residuals per candidate of
-            :data:`CANDIDATES`.
+        costs: (C,) per candidate of :data:`CANDIDATES`, the sum over frames of
+            ``sides * cost / lowest cost``.
         samples: samples behind them; sides: sides behind them.
+        steady: sides pooled since the curve in use last changed.
     """
 
-    # later frames are not probed once this many sides are pooled (the decision of
-    # :meth:`estimate` no longer changes: see the module docstring)
+    # later frames are not probed once this many sides have been pooled without
+    # changing the curve in use (the decision of :meth:`estimate` no longer changes,
+    # see the module docstring; a change is confirmed or undone by as many sides)
     SETTLED_SIDES = 96
 
     def __init__(self, start: ToneCurve | None = None) -> None:
@@ -176,19 +192,23 @@ class TonePool:
         self.costs = np.zeros(len(CANDIDATES))
         self.samples = 0
         self.sides = 0
+        self.steady = 0
 
     def add(self, costs: np.ndarray, samples: int, sides: int) -> None:
         """Add one frame's (C,) candidate costs over ``samples`` samples of ``sides`` sides."""
-        if sides == 0 or not np.isfinite(costs).all():
+        costs = np.asarray(costs, dtype=np.float64)
+        if sides == 0 or not np.isfinite(costs).all() or costs.min() <= 0.0:
             return
-        self.costs = self.costs + costs
+        before = self.estimate().curve
+        self.costs = self.costs + sides * costs / costs.min()
         self.samples += int(samples)
         self.sides += int(sides)
+        self.steady = 0 if differs(self.estimate().curve, before) else self.steady + sides
 
     @property
     def settled(self) -> bool:
-        """The estimate rests on enough sides that further frames need not probe."""
-        return self.sides >= self.SETTLED_SIDES
+        """The curve in use has held over enough sides that further frames need not probe."""
+        return self.steady >= self.SETTLED_SIDES
 
     def _start_cost(self) -> float:
         """The pooled cost of the start curve."""
@@ -232,15 +252,51 @@ class TonePool:
         return ToneEstimate(fitted if strong else self.start, sigma, True, self.sides, fitted)
 
 
-def probe_costs(fit_values: Callable[..., None], values: np.ndarray, sides: np.ndarray,
-                current: ToneCurve, coef: np.ndarray, blur: np.ndarray) -> np.ndarray:
-    """(C,) step-model costs of every candidate curve on the ``sides`` given.
+def differs(a: ToneCurve, b: ToneCurve) -> bool:
+    """Two curves far enough apart that the edges are worth fitting again.
+
+    (0.12 in gamma moves a sharp edge by about 0.02 px; sRGB and gamma 2.2 differ
+    only in the darkest tenth, where no edge's transition is read, so sRGB counts as
+    its effective gamma 2.2.)
+    """
+    return abs(a.gamma - b.gamma) > 0.12
+
+
+def sound_sides(contrast: np.ndarray) -> np.ndarray:
+    """(F,) bool: the probed sides whose step every candidate's re-fit still sees.
+
+    A side's cost is relative to its fitted contrast ``D``; where a fit has lost the
+    step (``D`` near zero or of the wrong sign: a side in noise, or laid across
+    something else) that cost has no bound, and its ratio between candidates is only
+    the ratio of their contrast scales, which favours the flattest curve. One such
+    side on a dim frame outweighed 90 sound ones and read a gamma 2.2 camera as
+    linear. So a side counts only when its contrast has one sign in every candidate
+    and is at least :data:`MIN_CONTRAST_SHARE` of the median over the probed sides
+    (per candidate: each reads the contrast on its own scale).
 
     Args:
-        fit_values: ``fit_values(values, coef0=, blur0=, cost_out=)`` re-fits C copies
-            of the sides, copy c to ``values`` read through candidate c (the step
-XX
-            ``copies=C``; C F sides, copy-major).
+        contrast: (C, F) the re-fitted contrast ``D`` of each candidate and side.
+    """
+    d = np.asarray(contrast, dtype=np.float64)
+    if d.shape[1] == 0:
+        return np.zeros(0, dtype=bool)
+    one_sign = (np.sign(d) == np.sign(d[:1])).all(axis=0) & (d[0] != 0.0)
+    typical = np.median(np.abs(d), axis=1, keepdims=True)
+    return np.asarray(one_sign & (np.abs(d) >= MIN_CONTRAST_SHARE * typical).all(axis=0))
+
+
+def probe_costs(fit_values: Callable[..., None], values: np.ndarray, sides: np.ndarray,
+                current: ToneCurve, coef: np.ndarray, blur: np.ndarray
+                ) -> tuple[np.ndarray, np.ndarray]:
+    """(C,) step-model costs of every candidate curve over the sound ``sides`` given, and
+    (F,) bool which sides those are (:func:`sound_sides`).
+
+    Args:
+        fit_values: ``fit_values(values, coef0=, blur0=, cost_out=, contrast_out=)``
+            re-fits C copies of the sides, copy c to ``values`` read through candidate c
+            (the step model's fit on the probed sides' samples,
+            :meth:`~artcal_ros.core.detect.edges.ProbeFit.subset` with ``copies=C``;
+            C F sides, copy-major).
         values: (N,) the probed sides' samples' linear values, read through ``current``.
         sides: (F,) int, the sides probed (indices into ``coef`` and ``blur``).
         current: the curve ``values`` were read through.
@@ -250,6 +306,8 @@ XX
     n_cand, f = len(CANDIDATES), len(sides)
     stacked = np.concatenate([curve.to_linear(encoded) for curve in CANDIDATES])
     cost = np.zeros(n_cand * f)
+    contrast = np.zeros(n_cand * f)
     fit_values(stacked, coef0=np.tile(coef[sides], (n_cand, 1)),
-               blur0=np.tile(blur[sides], n_cand), cost_out=cost)
-    return cost.reshape(n_cand, f).sum(axis=1)
+               blur0=np.tile(blur[sides], n_cand), cost_out=cost, contrast_out=contrast)
+    sound = sound_sides(contrast.reshape(n_cand, f))
+    return cost.reshape(n_cand, f)[:, sound].sum(axis=1), sound
