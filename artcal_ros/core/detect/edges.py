@@ -320,8 +320,12 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
             lin, a, u, n, t, present, model.coef, model.length, model.order >= 3, span, inner,
             outer, _neighbour_lines(corners), corner_clear)
         px_c, py_c, _, s_c, values = samples
+        # (the module width at each sample's edge point: where the code behind the border
+        # begins on its profile)
         along, m_s = module_geometry_at(corners, np.stack([px_c, py_c], axis=-1), sid, n,
-                                        bits, lens)
+                                        bits, lens,
+                                        offset=s_c - np.einsum("ij,ij->i", basis,
+                                                               model.coef[sid]))
         if rows:
             far = far_cells(along, sid, np.asarray(inner_same, bool).reshape(S, rows, bits),
                             blur * (bits + 2) / model.length)
