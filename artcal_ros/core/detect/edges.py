@@ -32,7 +32,7 @@ import numpy as np
 from artcal_ros.core.detect.lens import Lens, LensPool
 from artcal_ros.core.detect.linalg import nanmedian_rows
 from artcal_ros.core.detect.plumb import estimate_division, lens_bend
-from artcal_ros.core.detect.profiles import coarse_offsets, gather_samples
+from artcal_ros.core.detect.profiles import coarse_offsets, flatten_light, gather_samples
 from artcal_ros.core.detect.sides import (
     SideModel,
     intersect_sides,
@@ -312,27 +312,20 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
             known = np.asarray(outer_same, bool).reshape(S)
             reach = np.clip((quiet_modules + beyond_modules) * m_med - 1.2, 1.5, 5.0)
             outer = np.where(known, np.maximum(reach, outer), outer)
-        # samples: the pixels nearest a grid of points along and across each side, so
-        # the model sees raw pixel values (interpolation would add its own, phase-
-        # dependent edge shifts)
+        # samples: the pixels nearest a grid of points along and across each side (raw
+        # values: interpolation would add its own, phase-dependent edge shifts)
         span = (-int(np.ceil(inner.max())), int(np.ceil(outer.max())))
         samples, basis, sid, used = gather_samples(
             lin, a, u, n, t, present, model.coef, model.length, model.order >= 3, span, inner,
             outer, _neighbour_lines(corners), corner_clear)
-        px_c, py_c, _, s_c, values = samples
-        # (the module width at each sample's edge point: where the code behind the border
-        # begins on its profile)
-        along, m_s = module_geometry_at(corners, np.stack([px_c, py_c], axis=-1), sid, n,
-                                        bits, lens,
-                                        offset=s_c - np.einsum("ij,ij->i", basis,
-                                                               model.coef[sid]))
-        quiet_m = m_s
-        if known is not None:
-            # the known edge beyond the quiet zone: the module-wide band behind each
-            # sample places it better than the border's width (mixed boards' clean
-            # corners 0.0207 against 0.0194 px, bench.detection --quick)
-            quiet_m = module_geometry_at(corners, np.stack([px_c, py_c], axis=-1), sid, n,
-                                         bits, lens)[1]
+        px_c, py_c, _, s_c, values, rel = samples
+        if censor_at is None:
+            values = flatten_light(values, rel, basis[:, 1], sid, S, outer)
+        pts_c = np.stack([px_c, py_c], axis=-1)    # (the border's width places the code)
+        along, m_s = module_geometry_at(corners, pts_c, sid, n, bits, lens, offset=rel)
+        # (a mixed board's known edge beyond the quiet zone: better by the sample's width)
+        quiet_m = m_s if known is None else module_geometry_at(corners, pts_c, sid, n,
+                                                               bits, lens)[1]
         if rows:
             far = far_cells(along, sid, np.asarray(inner_same, bool).reshape(S, rows, bits),
                             blur * (bits + 2) / model.length)
@@ -504,3 +497,4 @@ def _neighbour_lines(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     p0 = np.stack([np.roll(start, -shift, axis=1).reshape(4 * M, 2) for shift in (-1, 1)], 1)
     nin = np.stack([np.roll(inward, -shift, axis=1).reshape(4 * M, 2) for shift in (-1, 1)], 1)
     return p0, nin
+

@@ -325,8 +325,8 @@ def module_geometry_at(corners: np.ndarray, pts: np.ndarray, side: np.ndarray,
     pts = np.ascontiguousarray(pts, dtype=np.float64)
     side = np.ascontiguousarray(side, dtype=np.intp)
     n = np.ascontiguousarray(n, np.float64)
-    edge = pts if offset is None else np.ascontiguousarray(
-        pts - np.asarray(offset, np.float64)[:, None] * n[side])
+    edge = pts if offset is None else _edge_points(
+        pts, side, n, np.ascontiguousarray(offset, np.float64))
     M = len(corners)
     H = module_homographies(
         corners if lens is None
@@ -344,8 +344,7 @@ def module_geometry_at(corners: np.ndarray, pts: np.ndarray, side: np.ndarray,
         elif offset is None:
             p_u = e_u = lens.undistort(p)
         else:
-            both = lens.undistort(np.concatenate([p, e]))
-            p_u, e_u = both[: len(p)], both[len(p):]
+            p_u, e_u = lens.undistort(p), lens.undistort(e)
         mod, inner = _module_points(Hinv, H, side[sl], p_u, e_u)
         if lens is not None:
             inner = lens.distort(inner)
@@ -354,6 +353,17 @@ def module_geometry_at(corners: np.ndarray, pts: np.ndarray, side: np.ndarray,
     if len(pts):
         run_all(part, split_even(np.arange(len(pts)), np.ones(len(pts))))
     return along, width
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def _edge_points(pts: np.ndarray, side: np.ndarray, n: np.ndarray, offset: np.ndarray
+                 ) -> np.ndarray:
+    """(N, 2) points (N, 2) moved back by their offsets (N,) along their sides' normals."""
+    out = np.empty_like(pts)
+    for i in range(len(pts)):
+        out[i, 0] = pts[i, 0] - offset[i] * n[side[i], 0]
+        out[i, 1] = pts[i, 1] - offset[i] * n[side[i], 1]
+    return out
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
