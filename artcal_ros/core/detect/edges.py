@@ -32,7 +32,7 @@ import numpy as np
 from artcal_ros.core.detect.lens import Lens, LensPool
 from artcal_ros.core.detect.linalg import nanmedian_rows
 from artcal_ros.core.detect.plumb import estimate_division, lens_bend
-from artcal_ros.core.detect.profiles import coarse_offsets, flatten_light, gather_samples
+from artcal_ros.core.detect.profiles import coarse_offsets, gather_samples
 from artcal_ros.core.detect.sides import (
     SideModel,
     intersect_sides,
@@ -319,8 +319,6 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
             lin, a, u, n, t, present, model.coef, model.length, model.order >= 3, span, inner,
             outer, _neighbour_lines(corners), corner_clear)
         px_c, py_c, _, s_c, values, rel = samples
-        if censor_at is None:
-            values = flatten_light(values, rel, basis[:, 1], sid, S, outer)
         pts_c = np.stack([px_c, py_c], axis=-1)    # (the border's width places the code)
         along, m_s = module_geometry_at(corners, pts_c, sid, n, bits, lens, offset=rel)
         # (a mixed board's known edge beyond the quiet zone: better by the sample's width)

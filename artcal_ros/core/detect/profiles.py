@@ -22,7 +22,7 @@ from numba import njit
 
 from artcal_ros.core.detect.workers import run_all, split_even
 
-__all__ = ["coarse_offsets", "flatten_light", "gather_samples"]
+__all__ = ["coarse_offsets", "gather_samples"]
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
@@ -244,68 +244,3 @@ def gather_samples(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
     run_all(lambda r: _gather_kernel(r, start, *args, count, used, out, basis, True), runs)
     return out, basis, np.repeat(np.arange(S), count), used
 
-
-# quiet-zone samples at least this far outside the edge show the light alone, pixels
-_LIGHT_CLEAR_PX = 2.0
-
-
-def flatten_light(values: np.ndarray, rel: np.ndarray, tau: np.ndarray, side: np.ndarray,
-                  n_sides: int, outer: np.ndarray) -> np.ndarray:
-    """Samples divided by the light's linear trend along their side (N,).
-
-    The step model has one level and contrast per side, but vignetting and uneven light
-    change both along a side; fitted with constant ones, a side turns toward its darker
-    end. In a fisheye's outer field (30 % vignetting, ``bench.tone``'s realistic light,
-    the true camera given) that spread the radial sides toward the image's edge and moved
-    the centres 0.008 px inward (0.0013 with this). The trend is read off the light quiet
-    zone beyond a dark border (a line through its samples ``_LIGHT_CLEAR_PX`` or more
-    outside the edge); a side whose outside is not clearly lighter than its border, or
-    with fewer than 8 such samples, keeps its values.
-
-    Args:
-        values: (N,) linear sample values.
-        rel: (N,) offsets from the edge along the outward normal, pixels.
-        tau: (N,) along-side positions, -1 .. 1.
-        side: (N,) int side of each sample; n_sides: S.
-        outer: (S,) the sample window outside each side's edge, pixels.
-    """
-    f64 = np.float64
-    return _flatten_kernel(np.ascontiguousarray(values, f64), np.ascontiguousarray(rel, f64),
-                           np.ascontiguousarray(tau, f64), np.ascontiguousarray(side, np.intp),
-                           int(n_sides), np.ascontiguousarray(outer, f64))
-
-
-@njit(cache=True, error_model="numpy", nogil=True)
-def _flatten_kernel(values: np.ndarray, rel: np.ndarray, tau: np.ndarray, side: np.ndarray,
-                    n_sides: int, outer: np.ndarray) -> np.ndarray:
-    """See :func:`flatten_light`."""
-    acc = np.zeros((n_sides, 7))   # n, t, t^2, v, v t (quiet zone); n, v (border)
-    for i in range(len(values)):
-        k = side[i]
-        if _LIGHT_CLEAR_PX <= rel[i] <= outer[k]:
-            t, v = tau[i], values[i]
-            acc[k, 0] += 1.0
-            acc[k, 1] += t
-            acc[k, 2] += t * t
-            acc[k, 3] += v
-            acc[k, 4] += v * t
-        elif -1.5 <= rel[i] <= -0.5:   # the border, next to its edge
-            acc[k, 5] += 1.0
-            acc[k, 6] += values[i]
-    trend = np.zeros(n_sides)
-    for k in range(n_sides):
-        n = acc[k, 0]
-        if n < 8 or acc[k, 5] < 1:
-            continue
-        t_mean, v_mean = acc[k, 1] / n, acc[k, 3] / n
-        t_var = acc[k, 2] / n - t_mean * t_mean
-        if t_var <= 0.1:
-            continue
-        slope = (acc[k, 4] / n - t_mean * v_mean) / t_var
-        level = v_mean - slope * t_mean
-        if level > 1.5 * acc[k, 6] / acc[k, 5] and level > 0:
-            trend[k] = min(max(slope / level, -0.2), 0.2)
-    out = np.empty_like(values)
-    for i in range(len(values)):
-        out[i] = values[i] / (1.0 + trend[side[i]] * tau[i])
-    return out
