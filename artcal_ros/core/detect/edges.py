@@ -495,4 +495,3 @@ def _neighbour_lines(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     p0 = np.stack([np.roll(start, -shift, axis=1).reshape(4 * M, 2) for shift in (-1, 1)], 1)
     nin = np.stack([np.roll(inward, -shift, axis=1).reshape(4 * M, 2) for shift in (-1, 1)], 1)
     return p0, nin
-

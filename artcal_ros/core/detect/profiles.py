@@ -243,4 +243,3 @@ def gather_samples(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
     basis = np.empty((start[-1], 3))
     run_all(lambda r: _gather_kernel(r, start, *args, count, used, out, basis, True), runs)
     return out, basis, np.repeat(np.arange(S), count), used
-
