@@ -312,16 +312,18 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
             known = np.asarray(outer_same, bool).reshape(S)
             reach = np.clip((quiet_modules + beyond_modules) * m_med - 1.2, 1.5, 5.0)
             outer = np.where(known, np.maximum(reach, outer), outer)
-        # samples: the pixels nearest a grid of points along and across each side, so
-        # the model sees raw pixel values (interpolation would add its own, phase-
-        # dependent edge shifts)
+        # samples: the pixels nearest a grid of points along and across each side (raw
+        # values: interpolation would add its own, phase-dependent edge shifts)
         span = (-int(np.ceil(inner.max())), int(np.ceil(outer.max())))
         samples, basis, sid, used = gather_samples(
             lin, a, u, n, t, present, model.coef, model.length, model.order >= 3, span, inner,
             outer, _neighbour_lines(corners), corner_clear)
-        px_c, py_c, _, s_c, values = samples
-        along, m_s = module_geometry_at(corners, np.stack([px_c, py_c], axis=-1), sid, n,
-                                        bits, lens)
+        px_c, py_c, _, s_c, values, rel = samples
+        pts_c = np.stack([px_c, py_c], axis=-1)    # (the border's width places the code)
+        along, m_s = module_geometry_at(corners, pts_c, sid, n, bits, lens, offset=rel)
+        # (a mixed board's known edge beyond the quiet zone: better by the sample's width)
+        quiet_m = m_s if known is None else module_geometry_at(corners, pts_c, sid, n,
+                                                               bits, lens)[1]
         if rows:
             far = far_cells(along, sid, np.asarray(inner_same, bool).reshape(S, rows, bits),
                             blur * (bits + 2) / model.length)
@@ -331,7 +333,7 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
             s=s_c, side=sid, n_sides=S, basis=basis, far=far, module_px=m_s,
             fit_order=fit_order, normal=n, tol_px=_FIT_TOL_PX,
             outer=None if known is None else known[sid].astype(np.float32),
-            quiet_px=None if known is None else quiet_modules * m_s, censor_at=censor_at)
+            quiet_px=None if known is None else quiet_modules * quiet_m, censor_at=censor_at)
 
         def fit(vals: np.ndarray = values, coef0: np.ndarray = model.coef,
                 common: dict[str, Any] = common,

@@ -163,6 +163,7 @@ def _side_samples(s: int, lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.n
                 out[2, m] = ts
                 out[3, m] = ss
                 out[4, m] = lin[int(py), int(px)]
+                out[5, m] = rel
                 basis[m, 0] = 1.0
                 basis[m, 1] = tau_s
                 basis[m, 2] = quad
@@ -213,8 +214,9 @@ def gather_samples(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
         clear: pixels.
 
     Returns:
-        samples (5, N): x, y (the pixel), t, s (its along-side and normal
-        coordinates, pixels) and its value; basis (N, 3), the edge polynomial's basis
+        samples (6, N): x, y (the pixel), t, s (its along-side and normal
+        coordinates, pixels), its value and its offset from the edge curve along the
+        normal, pixels; basis (N, 3), the edge polynomial's basis
         (1, tau, tau^2 - 1/3, the last 0 where not curved) at each; side (N,) int,
         non-decreasing;
         profiles (S,) int, the profiles with at least one sample.
@@ -234,10 +236,10 @@ def gather_samples(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
     # more in page faults than the second pass), the sides in runs on the worker threads
     runs = split_even(np.arange(S), np.sum(present, axis=1) * (offsets[1] - offsets[0] + 1))
     start = np.zeros(S + 1, np.intp)
-    run_all(lambda r: _gather_kernel(r, start, *args, count, used, np.empty((5, 0)),
+    run_all(lambda r: _gather_kernel(r, start, *args, count, used, np.empty((6, 0)),
                                      np.empty((0, 3)), False), runs)
     start[1:] = np.cumsum(count)
-    out = np.empty((5, start[-1]))
+    out = np.empty((6, start[-1]))
     basis = np.empty((start[-1], 3))
     run_all(lambda r: _gather_kernel(r, start, *args, count, used, out, basis, True), runs)
     return out, basis, np.repeat(np.arange(S), count), used

@@ -290,14 +290,23 @@ def _intersect_kernel(coef: np.ndarray, cov: np.ndarray, length: np.ndarray,
 
 def module_geometry_at(corners: np.ndarray, pts: np.ndarray, side: np.ndarray,
                        n: np.ndarray, bits: int,
-                       lens: Lens | None = None
+                       lens: Lens | None = None, offset: np.ndarray | None = None
                        ) -> tuple[np.ndarray, np.ndarray]:
-    """Along-side position (in modules, 0..bits+2) and local module width (pixels).
+    """Along-side position (in modules, 0..bits+2) and module width (pixels) at points.
 
     With a lens the marker's homography is taken between undistorted pixels, so
     the code cells land where the lens puts them (near the corners of a strongly
     distorted image, the distorted quad's homography misplaces them by up to a
     pixel along the side).
+
+    The width is the border's: from the edge point of the point's profile (the point
+    moved ``offset`` back along the normal) one module inward, so it says where the
+    code behind the border begins. Taken at the point itself, it is the width of the
+    module-wide band behind the point instead, which differs wherever the image scale
+    changes across the side: in a fisheye's outer field, where the scale falls with
+    the radius, that misplaced the code's edge by a few hundredths of a pixel and
+    moved the fitted sides of every marker outward (corners 0.010 px outward on
+    average, 0.015 px beyond 400 px from the centre; ``bench.tone``'s fisheye).
 
     Args:
         corners: (M, 4, 2) current quads, pixels.
@@ -306,13 +315,18 @@ def module_geometry_at(corners: np.ndarray, pts: np.ndarray, side: np.ndarray,
         n: (S, 2) outward normals.
         bits: code cells per marker side.
         lens: optional lens model.
+        offset: optional (N,) each point's offset from its side's edge along ``n``,
+            pixels (none: the points are on the edge).
 
     Returns:
-        along (N,) modules and module width (N,) pixels (at least half a pixel).
+        along (N,) modules at the points and module width (N,) pixels (at least half a
+        pixel) at their edge points.
     """
     pts = np.ascontiguousarray(pts, dtype=np.float64)
     side = np.ascontiguousarray(side, dtype=np.intp)
     n = np.ascontiguousarray(n, np.float64)
+    edge = pts if offset is None else _edge_points(
+        pts, side, n, np.ascontiguousarray(offset, np.float64))
     M = len(corners)
     H = module_homographies(
         corners if lens is None
@@ -324,11 +338,17 @@ def module_geometry_at(corners: np.ndarray, pts: np.ndarray, side: np.ndarray,
     def part(run: np.ndarray) -> None:
         # points in consecutive runs on the worker threads (every step is per point)
         sl = slice(int(run[0]), int(run[-1]) + 1)
-        p = pts[sl]
-        mod, inner = _module_points(Hinv, H, side[sl], p if lens is None else lens.undistort(p))
+        p, e = pts[sl], edge[sl]
+        if lens is None:
+            p_u, e_u = p, e
+        elif offset is None:
+            p_u = e_u = lens.undistort(p)
+        else:
+            p_u, e_u = lens.undistort(p), lens.undistort(e)
+        mod, inner = _module_points(Hinv, H, side[sl], p_u, e_u)
         if lens is not None:
             inner = lens.distort(inner)
-        along[sl], width[sl] = _along_width(mod, inner, p, side[sl], n, bits + 2.0)
+        along[sl], width[sl] = _along_width(mod, inner, e, side[sl], n, bits + 2.0)
 
     if len(pts):
         run_all(part, split_even(np.arange(len(pts)), np.ones(len(pts))))
@@ -336,16 +356,29 @@ def module_geometry_at(corners: np.ndarray, pts: np.ndarray, side: np.ndarray,
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def _module_points(Hinv: np.ndarray, H: np.ndarray, side: np.ndarray, pts: np.ndarray
-                   ) -> tuple[np.ndarray, np.ndarray]:
+def _edge_points(pts: np.ndarray, side: np.ndarray, n: np.ndarray, offset: np.ndarray
+                 ) -> np.ndarray:
+    """(N, 2) points (N, 2) moved back by their offsets (N,) along their sides' normals."""
+    out = np.empty_like(pts)
+    for i in range(len(pts)):
+        out[i, 0] = pts[i, 0] - offset[i] * n[side[i], 0]
+        out[i, 1] = pts[i, 1] - offset[i] * n[side[i], 1]
+    return out
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def _module_points(Hinv: np.ndarray, H: np.ndarray, side: np.ndarray, pts: np.ndarray,
+                   edge: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Module coordinates (N, 2) of points (N, 2) on sides (N,), and the image of the point
-    one module further inward from each (N, 2) (both through the marker's homography)."""
+    one module further inward from each point's edge point ``edge`` (N, 2) (both through
+    the marker's homography)."""
     mod = np.empty_like(pts)
     inner = np.empty_like(pts)
     for i in range(len(pts)):
         m, k = side[i] // 4, side[i] % 4
         x, y = _apply(Hinv[m], pts[i, 0], pts[i, 1])
         mod[i, 0], mod[i, 1] = x, y
+        x, y = _apply(Hinv[m], edge[i, 0], edge[i, 1])
         # one module inward: +y from the top side, -x from the right, -y, +x
         if k == 0:
             y += 1.0
@@ -362,7 +395,9 @@ def _module_points(Hinv: np.ndarray, H: np.ndarray, side: np.ndarray, pts: np.nd
 @njit(cache=True, error_model="numpy", nogil=True)
 def _along_width(mod: np.ndarray, inner: np.ndarray, pts: np.ndarray, side: np.ndarray,
                  n: np.ndarray, size: float) -> tuple[np.ndarray, np.ndarray]:
-    """Position along each side, modules (in side direction), and module width, pixels."""
+    """Position along each side, modules (in side direction), and module width, pixels,
+    from module coordinates (N, 2), the inner points (N, 2) and the points (N, 2) the
+    widths are measured from."""
     along = np.empty(len(pts))
     width = np.empty(len(pts))
     for i in range(len(pts)):
