@@ -317,7 +317,7 @@ class Detector:
         marker_shift = neighbourhood_shift_px(ids, q, c, self.board)
         # light spreading into dark grows a white-bordered marker and shrinks a black one:
         # on a mixed board each polarity has its own shift (reported: the black ones')
-        inverted = np.array([self.board.is_inverted(int(i)) for i in ids], bool)
+        inverted = ~self._dark(ids)
         shift, largest = float("nan"), 0.0
         q_u, q = q, q.copy()
         for group in (~inverted, inverted):
@@ -389,8 +389,7 @@ class Detector:
 
         dark = border_is_dark(lin, quads, bits)
         if self.board.polarity != "any":
-            expected = np.array([not self.board.is_inverted(int(i)) for i in ids])
-            keep = dark == expected
+            keep = dark == self._dark(ids)
             quads, ids, dark = quads[keep], ids[keep], dark[keep]
 
         clipped = is_clipped(gray8)
