@@ -14,7 +14,13 @@ import pytest
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector, DetectorConfig
-from artcal_ros.core.detect.candidates import dark_level, is_clipped, saturation_image
+from artcal_ros.core.detect.candidates import (
+    compressed_plateau,
+    dark_level,
+    is_clipped,
+    saturates,
+    saturation_image,
+)
 from artcal_ros.core.detect.edge_shift import compensate_sides, toward_neighbourhood
 from artcal_ros.core.detect.step_model import fit_step_model, pixel_esf
 from artcal_ros.synth import Camera, Photometry, RenderedView, random_poses, render_view
@@ -74,6 +80,36 @@ def test_censored_fit_on_clipped_frame() -> None:
     # the raw corners no longer need a large shift removed
     det = Detector(BOARD)
     assert abs(det.detect(view.image).edge_shift_px) < 0.1
+
+
+@pytest.mark.parametrize("jpeg_quality", [80, None])
+def test_partly_clipped_frame_is_censored(jpeg_quality: int | None) -> None:
+    """A brighter patch of light clips part of the paper (4 - 10 % of the frame, below
+    the clipped-frame share): the saturated samples of those sides are censored as in a
+    clipped frame, below the top level when JPEG has spread the plateau. Measured on
+    seeds 5210 - 5213: corners 0.10 - 0.30 px uncensored, 0.037 - 0.071 censored."""
+    rng = np.random.default_rng(5210)
+    rvec, tvec = random_poses(BOARD, CAM, 1, rng, partial_fraction=0.0)[0]
+    view = render_view(BOARD, CAM, rvec, tvec, rng=rng, photometry=Photometry(
+        gradient=0.4, vignetting=0.3, defocus_px=1.2, exposure=1.45,
+        jpeg_quality=jpeg_quality))
+    assert not is_clipped(view.image)
+    assert saturates(view.image)
+    assert compressed_plateau(view.image) == (jpeg_quality is not None)
+    plain = DetectorConfig(censor_clipped=False, edge_shift=False)
+    _, _, _, k_plain = _errors(view, Detector(BOARD, plain))
+    found, wanted, _, k_cens = _errors(view, Detector(BOARD, DetectorConfig(edge_shift=False)))
+    assert found >= 0.9 * wanted
+    assert _rms(k_cens) < 0.5 * _rms(k_plain)
+    assert _rms(k_cens) < 0.07
+
+
+def test_a_glint_is_not_a_saturated_patch() -> None:
+    img = np.full((120, 160), 90, np.uint8)
+    img[10:12, 10:12] = 255
+    assert not saturates(img)
+    img[20:60, 30:90] = 255
+    assert saturates(img)
 
 
 def test_normal_frame_is_not_clipped() -> None:

@@ -48,7 +48,13 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.camera import CameraModel, HasCamera
-from artcal_ros.core.detect.candidates import CandidateFinder, dark_level, is_clipped
+from artcal_ros.core.detect.candidates import (
+    CandidateFinder,
+    compressed_plateau,
+    dark_level,
+    is_clipped,
+    saturates,
+)
 from artcal_ros.core.detect.centers import diagonal_centers
 from artcal_ros.core.detect.charuco import charuco_corners
 from artcal_ros.core.detect.chessboard import detect_chessboard
@@ -176,6 +182,22 @@ _CENSOR_BELOW = 0.85
 # scatter of the sides is the frame's noise: on realistic frames (JPEG, defocus, ink at
 # 0.1) the move made corners worse (seed 7340's 20-view calibration 0.031 -> 0.052 px)
 _PLACE_ABOVE = 0.35
+# samples within this share of full scale (encoded) of the frame's top level count as
+# saturated: JPEG spreads a clipped patch's edge over the levels below its top (at
+# quality 70 - 95 the censored fits of a partly clipped fisheye view were as good from
+# 5 to 15 % down and lost most of their gain at 1 %: bench.tone's seed 7203, view 5)
+_CENSOR_MARGIN = 0.06
+
+
+def _censor_level(curve: ToneCurve, gray: np.ndarray, gray8: np.ndarray) -> float:
+    """The linear level from which a frame's samples count as saturated: its top level,
+    or :data:`_CENSOR_MARGIN` below it in a compressed frame (:func:`compressed_plateau`)."""
+    full = 255.0 if gray.dtype == np.uint8 else 65535.0
+    top = float(gray.max()) / full
+    if compressed_plateau(gray8):
+        return float(curve.to_linear(np.array([max(top - _CENSOR_MARGIN, 0.0)]))[0])
+    return float(curve.to_linear(np.array([top]))[0]) * 0.999
+
 
 # most pilot sides a frame's tone probe re-fits per candidate curve
 _PROBE_SIDES = 16
@@ -274,11 +296,11 @@ class Detector:
         return _ToneProbe(self._tone_pool, curve)
 
     def _refine(self, lin: np.ndarray, quads: np.ndarray, dark: np.ndarray, ids: np.ndarray,
-                lens: Lens | None, probe: _ToneProbe | None, clipped: bool = False,
+                lens: Lens | None, probe: _ToneProbe | None, censor_at: float | None = None,
                 pool: bool = True) -> EdgeFit:
         """The edge fit of every quad (:func:`refine_quads` with this detector's settings;
-        ``clipped``: saturated samples censored; ``pool``: the frame's lens evidence
-        joins the pool)."""
+        ``censor_at``: samples at or above this linear level are censored; ``pool``: the
+        frame's lens evidence joins the pool)."""
         return refine_quads(lin, quads, dark, self.board.bits, margin_px=self.config.margin_px,
                             curve_min_px=self.config.curve_min_px, passes=1,
                             allow_curvature=lens is None and self.config.estimate_lens,
@@ -291,7 +313,7 @@ class Detector:
                             lens_pool=self._lens_pool if self.config.pool_lens and pool
                             else None,
                             tone_probe=probe,
-                            censor_at=float(lin.max()) * 0.999 if clipped else None)
+                            censor_at=censor_at)
 
     def _dark(self, ids: np.ndarray) -> np.ndarray:
         """(N,) bool: the board prints these markers with a dark border."""
@@ -395,9 +417,12 @@ class Detector:
         clipped = is_clipped(gray8)
         # censoring the saturated samples makes a clipped edge's fit consistent while its
         # transition still shows; once the ink itself nears saturation only a sliver
-        # of it does, and the edge of the clipped plateau is the steadier measure
-        ink = dark_level(lin, quads, bits) if clipped else 0.0
-        censor = self.config.censor_clipped and clipped and ink < _CENSOR_BELOW
+        # of it does, and the edge of the clipped plateau is the steadier measure. A
+        # frame clipped in part (a brighter patch of light) is censored too: only the
+        # sides with saturated samples are fitted differently
+        saturated = clipped or saturates(gray8)
+        ink = dark_level(lin, quads, bits) if saturated else 0.0
+        censor = self.config.censor_clipped and saturated and ink < _CENSOR_BELOW
         lens: Lens | None = (
             known_lens(camera) if camera is not None else None)
         fit_lens: Lens | None = None
@@ -405,7 +430,8 @@ class Detector:
         if self.config.refine_edges and len(ids):
             lens_state = dict(vars(self._lens_pool))
             probe = self._probe(curve) if probing else None
-            fit = self._refine(lin, quads, dark, ids, lens, probe, censor)
+            fit = self._refine(lin, quads, dark, ids, lens, probe,
+                               _censor_level(curve, gray, gray8) if censor else None)
             if probe is not None:
                 probe.commit()
                 better = self._tone_pool.estimate().curve
@@ -414,7 +440,8 @@ class Detector:
                     # evidence replaces, not joins, that of the first fit)
                     vars(self._lens_pool).update(lens_state)
                     curve, lin = better, better.linearise(gray)
-                    fit = self._refine(lin, quads, dark, ids, lens, None, censor)
+                    fit = self._refine(lin, quads, dark, ids, lens, None,
+                                       _censor_level(curve, gray, gray8) if censor else None)
             # a lens estimated from this frame's edges bends the fitted sides; it moves
             # the centers too once it is determined better than "no distortion" is
             # (|lam| above its standard deviation; a noisier one would add more error
@@ -447,7 +474,8 @@ class Detector:
             # verified ones say the others are (docs/tone.md, "Clipped frames")
             ids, corners, sigma = grow(
                 lin, ids, corners, sigma, self.board, self._candidates.clipped_patterns,
-                lambda q, i: self._refine(lin, q, self._dark(i), i, lens, None, censor,
+                lambda q, i: self._refine(lin, q, self._dark(i), i, lens, None,
+                                          _censor_level(curve, gray, gray8) if censor else None,
                                           pool=False),
                 min_side_px=self.config.min_side_px,
                 tolerance=self.config.neighbour_tolerance, hints=rejected)
