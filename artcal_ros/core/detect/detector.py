@@ -50,7 +50,7 @@ from artcal_ros.core.board import Board
 from artcal_ros.core.camera import CameraModel, HasCamera
 from artcal_ros.core.detect.candidates import (
     CandidateFinder,
-    compressed_plateau,
+    censor_level,
     dark_level,
     is_clipped,
     saturates,
@@ -182,23 +182,6 @@ _CENSOR_BELOW = 0.85
 # scatter of the sides is the frame's noise: on realistic frames (JPEG, defocus, ink at
 # 0.1) the move made corners worse (seed 7340's 20-view calibration 0.031 -> 0.052 px)
 _PLACE_ABOVE = 0.35
-# samples within this share of full scale (encoded) of the frame's top level count as
-# saturated: JPEG spreads a clipped patch's edge over the levels below its top (at
-# quality 70 - 95 the censored fits of a partly clipped fisheye view were as good from
-# 5 to 15 % down and lost most of their gain at 1 %: bench.tone's seed 7203, view 5)
-_CENSOR_MARGIN = 0.06
-
-
-def _censor_level(curve: ToneCurve, gray: np.ndarray, gray8: np.ndarray) -> float:
-    """The linear level from which a frame's samples count as saturated: its top level,
-    or :data:`_CENSOR_MARGIN` below it in a compressed frame (:func:`compressed_plateau`)."""
-    full = 255.0 if gray.dtype == np.uint8 else 65535.0
-    top = float(gray.max()) / full
-    if compressed_plateau(gray8):
-        return float(curve.to_linear(np.array([max(top - _CENSOR_MARGIN, 0.0)]))[0])
-    return float(curve.to_linear(np.array([top]))[0]) * 0.999
-
-
 # most pilot sides a frame's tone probe re-fits per candidate curve
 _PROBE_SIDES = 16
 
@@ -431,7 +414,7 @@ class Detector:
             lens_state = dict(vars(self._lens_pool))
             probe = self._probe(curve) if probing else None
             fit = self._refine(lin, quads, dark, ids, lens, probe,
-                               _censor_level(curve, gray, gray8) if censor else None)
+                               censor_level(curve, gray, gray8) if censor else None)
             if probe is not None:
                 probe.commit()
                 better = self._tone_pool.estimate().curve
@@ -441,7 +424,7 @@ class Detector:
                     vars(self._lens_pool).update(lens_state)
                     curve, lin = better, better.linearise(gray)
                     fit = self._refine(lin, quads, dark, ids, lens, None,
-                                       _censor_level(curve, gray, gray8) if censor else None)
+                                       censor_level(curve, gray, gray8) if censor else None)
             # a lens estimated from this frame's edges bends the fitted sides; it moves
             # the centers too once it is determined better than "no distortion" is
             # (|lam| above its standard deviation; a noisier one would add more error
@@ -475,7 +458,7 @@ class Detector:
             ids, corners, sigma = grow(
                 lin, ids, corners, sigma, self.board, self._candidates.clipped_patterns,
                 lambda q, i: self._refine(lin, q, self._dark(i), i, lens, None,
-                                          _censor_level(curve, gray, gray8) if censor else None,
+                                          censor_level(curve, gray, gray8) if censor else None,
                                           pool=False),
                 min_side_px=self.config.min_side_px,
                 tolerance=self.config.neighbour_tolerance, hints=rejected)
