@@ -22,6 +22,13 @@ LAM_RANGE = (-2.0, 1.0)
 MAX_HIGHER = 1.0  # |lam2|, |lam3|
 # the largest share of the usable sides a plausible lens may leave beyond its fold
 MAX_BEYOND_FOLD = 0.1
+# a side's curvature (its parabola term, px) is trusted to no better than this: the
+# division model only approximates a lens, and the step model's own error under heavy
+# defocus bends short sides. With 0.003, noise-free fisheye frames (every side at the
+# floor, the outer field's short sides weighing as much as long ones) gave centres
+# 0.088 / 0.048 px where their noisy copies gave 0.041 / 0.045 (bench.tone's realistic
+# fisheye, seeds 7233 / 7213; 0.037 / 0.023 with 0.01). Webcam and wide within 0.0002 px.
+CURVATURE_FLOOR = 0.01
 
 
 def lens_bend(lens: Lens, a: np.ndarray, u: np.ndarray, n: np.ndarray,
@@ -157,7 +164,7 @@ def estimate_division(model: SideModel, quads: np.ndarray, t: np.ndarray,
            + model.offset(t)[..., None] * n[:, None, :])
     mid = a + 0.5 * length[:, None] * u + model.offset(0.5 * length[:, None]) * n
     use = (model.order >= 3) & (model.count >= 6)
-    var = np.where(use, model.cov[:, 2, 2], np.inf) + 0.003**2
+    var = np.where(use, model.cov[:, 2, 2], np.inf) + CURVATURE_FLOOR**2
     theta: np.ndarray = np.zeros(3)  # lam, lam2, lam3
     eps = 1e-3
     # weak priors keep the r^4 and r^6 terms at zero unless the sides really ask for them
