@@ -182,6 +182,7 @@ _CENSOR_BELOW = 0.85
 # scatter of the sides is the frame's noise: on realistic frames (JPEG, defocus, ink at
 # 0.1) the move made corners worse (seed 7340's 20-view calibration 0.031 -> 0.052 px)
 _PLACE_ABOVE = 0.35
+
 # most pilot sides a frame's tone probe re-fits per candidate curve
 _PROBE_SIDES = 16
 
@@ -409,12 +410,13 @@ class Detector:
         lens: Lens | None = (
             known_lens(camera) if camera is not None else None)
         fit_lens: Lens | None = None
+        censor_at: float | None = None
         corners: np.ndarray
         if self.config.refine_edges and len(ids):
             lens_state = dict(vars(self._lens_pool))
             probe = self._probe(curve) if probing else None
-            fit = self._refine(lin, quads, dark, ids, lens, probe,
-                               censor_level(curve, gray, gray8) if censor else None)
+            censor_at = censor_level(curve, gray, gray8) if censor else None
+            fit = self._refine(lin, quads, dark, ids, lens, probe, censor_at)
             if probe is not None:
                 probe.commit()
                 better = self._tone_pool.estimate().curve
@@ -423,8 +425,8 @@ class Detector:
                     # evidence replaces, not joins, that of the first fit)
                     vars(self._lens_pool).update(lens_state)
                     curve, lin = better, better.linearise(gray)
-                    fit = self._refine(lin, quads, dark, ids, lens, None,
-                                       censor_level(curve, gray, gray8) if censor else None)
+                    censor_at = censor_level(curve, gray, gray8) if censor else None
+                    fit = self._refine(lin, quads, dark, ids, lens, None, censor_at)
             # a lens estimated from this frame's edges bends the fitted sides; it moves
             # the centers too once it is determined better than "no distortion" is
             # (|lam| above its standard deviation; a noisier one would add more error
@@ -457,8 +459,7 @@ class Detector:
             # verified ones say the others are (docs/tone.md, "Clipped frames")
             ids, corners, sigma = grow(
                 lin, ids, corners, sigma, self.board, self._candidates.clipped_patterns,
-                lambda q, i: self._refine(lin, q, self._dark(i), i, lens, None,
-                                          censor_level(curve, gray, gray8) if censor else None,
+                lambda q, i: self._refine(lin, q, self._dark(i), i, lens, None, censor_at,
                                           pool=False),
                 min_side_px=self.config.min_side_px,
                 tolerance=self.config.neighbour_tolerance, hints=rejected)
