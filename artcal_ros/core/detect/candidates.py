@@ -33,16 +33,23 @@ PLATEAU_SPREAD = 0.3
 _PLATEAU_LEVELS = 6
 
 
+def _at_top(gray8: np.ndarray) -> tuple[int, np.ndarray, int]:
+    """The frame's top level, every other pixel of every other row (its sample of the
+    frame) and how many of that sample are at the top."""
+    top = int(gray8.max())
+    sub = gray8[::2, ::2]
+    return top, sub, int(np.count_nonzero(sub >= top))
+
+
 def is_clipped(gray8: np.ndarray) -> bool:
     """At least :data:`CLIPPED_SHARE` of the frame at its (bright) maximum: over-exposed.
 
     Args:
         gray8: (H, W) uint8 image for the quad finder.
     """
-    top = int(gray8.max())
-    sub = gray8[::2, ::2]
+    top, sub, at = _at_top(gray8)
     # (a dark frame's maximum is not saturation, however many pixels share it)
-    return top >= 200 and np.count_nonzero(sub >= top) >= CLIPPED_SHARE * sub.size
+    return top >= 200 and at >= CLIPPED_SHARE * sub.size
 
 
 def saturates(gray8: np.ndarray) -> bool:
@@ -52,9 +59,8 @@ def saturates(gray8: np.ndarray) -> bool:
     Args:
         gray8: (H, W) uint8 image for the quad finder.
     """
-    top = int(gray8.max())
-    sub = gray8[::2, ::2]
-    return top >= SATURATED_LEVEL and np.count_nonzero(sub >= top) >= SATURATED_SHARE * sub.size
+    top, sub, at = _at_top(gray8)
+    return top >= SATURATED_LEVEL and at >= SATURATED_SHARE * sub.size
 
 
 def compressed_plateau(gray8: np.ndarray) -> bool:
@@ -69,9 +75,7 @@ def compressed_plateau(gray8: np.ndarray) -> bool:
     Args:
         gray8: (H, W) uint8 image for the quad finder.
     """
-    top = int(gray8.max())
-    sub = gray8[::2, ::2]
-    at = np.count_nonzero(sub >= top)
+    top, sub, at = _at_top(gray8)
     below = np.count_nonzero(sub >= top - _PLATEAU_LEVELS) - at
     return below >= PLATEAU_SPREAD * at
 
