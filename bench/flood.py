@@ -40,7 +40,7 @@ from artcal_ros.ros.processes import NodeProcess, private_domain_env
 from bench.node_load import Listener, LoadSpec, render_frames, vm_rss_kb, wait_for
 
 ROOT = Path(__file__).resolve().parents[1]
-LARGE_SHM = ROOT / "bench" / "fastdds_large_shm.xml"
+LARGE_SHM = ROOT / "artcal_ros" / "ros" / "fastdds_large_shm.xml"
 ANSWER_BOUND_S = 2.0  # the figure: a service call is answered within 2 s
 
 
