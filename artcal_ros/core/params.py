@@ -141,6 +141,11 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("image_transport", "raw",
               "raw: subscribe sensor_msgs/Image on 'image'; compressed: "
               "sensor_msgs/CompressedImage on 'image/compressed'.", choices=("raw", "compressed")),
+    ParamSpec("image_qos", "auto",
+              "Reliability of the image subscription. auto: reliable when every publisher of "
+              "the topic is reliable, else best effort (as ros2 topic echo and rosbag2 "
+              "choose), chosen again when publishers come and go; reliable or best_effort "
+              "force it.", choices=("auto", "reliable", "best_effort")),
     ParamSpec("min_views", 10, "Views the node collects before ~/calibrate will solve.",
               check=_positive),
     ParamSpec("max_views", 40, "Views a solve uses at most (the most informative are chosen).",

@@ -1,7 +1,8 @@
 """The calibrator node: collect views from a live image stream, solve on request.
 
 Interface (names relative, remappable):
-  subscribes  image                (sensor_msgs/Image; best effort, keep last 1)
+  subscribes  image                (sensor_msgs/Image; keep last 1, reliability as image_qos:
+                                    by default the publishers', see image_subscription.py)
               image/compressed     (sensor_msgs/CompressedImage, with image_transport: compressed)
   publishes   ~/overlay            (sensor_msgs/Image bgr8: markers, coverage, what is missing)
               ~/coverage           (sensor_msgs/Image bgr8 heat map; transient local)
@@ -18,6 +19,10 @@ on a background thread on those queued frames (and now and then on the newest on
 its detections become views. ``~/calibrate`` waits for the queued views, runs the solve
 on its own thread and waits for it in a reentrant callback, so images keep flowing
 meanwhile.
+
+Unless the user set up Fast DDS themselves, the node's participant gets a 64 MB
+shared-memory segment (:mod:`~artcal_ros.ros.transport`), so large frames from a
+best-effort camera are not lost in fragments.
 
 The views collected are saved under ``~/.ros/artcal/<camera_name>/`` every few seconds
 (``resume: true`` continues them after a stop, crash or kill). SIGINT and SIGTERM, any
@@ -60,14 +65,13 @@ from artcal_ros.core.overlay import render_heat_map, render_overlay
 from artcal_ros.core.params import ParamValue
 from artcal_ros.ros import msgs
 from artcal_ros.ros.diagnostics import Counters, diagnostic_array
+from artcal_ros.ros.image_subscription import ImageSubscription, QosChoice
 from artcal_ros.ros.latest import LatestWorker
 from artcal_ros.ros.parameters import check_update, declare_parameters
 from artcal_ros.ros.session import open_session
 from artcal_ros.ros.signals import StopSignals, shut_down, spin_until_stopped
+from artcal_ros.ros.transport import use_large_shared_memory
 
-IMAGE_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                       reliability=ReliabilityPolicy.BEST_EFFORT,
-                       durability=DurabilityPolicy.VOLATILE)
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -82,8 +86,9 @@ class CalibratorNode(Node):
         ParameterError: a parameter is bad (the message names it).
     """
 
-    def __init__(self, *, node_name: str = "calibrator") -> None:
+    def __init__(self, *, node_name: str = "calibrator", transport: str = "") -> None:
         super().__init__(node_name)
+        self.transport = transport or "as the process's Fast DDS setup"
         self.params: dict[str, ParamValue] = declare_parameters(self)
         self.board = Board.from_params(self.params)
         # Detection pulls in OpenCV's ArUco machinery; imported here so a bad parameter
@@ -120,32 +125,39 @@ class CalibratorNode(Node):
         self.coverage_pub = self.create_publisher(Image, "~/coverage", LATCHED_QOS)
         self.info_pub = self.create_publisher(CameraInfo, "camera_info", LATCHED_QOS)
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
-        if self.params["image_transport"] == "compressed":
-            topic = self.resolve_topic_name("image") + "/compressed"
-            self.create_subscription(CompressedImage, topic, self._on_image, IMAGE_QOS,
-                                     callback_group=images)
-        else:
-            self.create_subscription(Image, "image", self._on_image, IMAGE_QOS,
-                                     callback_group=images)
+        compressed = self.params["image_transport"] == "compressed"
+        self.images = ImageSubscription(
+            self, CompressedImage if compressed else Image,
+            self.resolve_topic_name("image") + ("/compressed" if compressed else ""),
+            self._on_image, mode=str(self.params["image_qos"]), callback_group=images,
+            on_change=self._on_qos_change)
         self.create_service(Trigger, "~/calibrate", self._on_calibrate, callback_group=services)
         self.create_service(Trigger, "~/reset", self._on_reset, callback_group=services)
         self.set_info_client: Any = self.create_client(
             SetCameraInfo, "set_camera_info", callback_group=services)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=timers)
+        # Publishers come and go (a driver restarts, a second one starts): choose again.
+        self.create_timer(0.5, self._choose_image_qos, callback_group=timers)
 
         self.worker: LatestWorker[Any] = LatestWorker(self._process, self._on_worker_error,
                                                       name="detect")
         self._publish_coverage()
         self.get_logger().info(
-            f"calibrating from '{self.resolve_topic_name('image')}' "
-            f"({self.params['image_transport']}); board {self.board.describe()}; "
-            f"call ~/calibrate after {self.params['min_views']} views")
+            f"calibrating from '{self.images.topic}' ({self.params['image_transport']}); "
+            f"board {self.board.describe()}; call ~/calibrate after "
+            f"{self.params['min_views']} views; DDS transport: {self.transport}")
 
     # --- images -------------------------------------------------------------------
     def _on_image(self, msg: Image | CompressedImage) -> None:
         # Executor thread: hand over and return; the worker does the work.
         self.counters.frame_seen()
         self.worker.offer(msg)
+
+    def _choose_image_qos(self) -> None:
+        self.images.refresh()
+
+    def _on_qos_change(self, choice: QosChoice) -> None:
+        self.get_logger().info(f"image qos: {choice.text()}")
 
     def _process(self, msg: Image | CompressedImage) -> None:
         from artcal_ros.core.images import compressed_to_numpy, image_to_numpy
@@ -216,6 +228,10 @@ class CalibratorNode(Node):
             self.get_clock().now().to_msg(), board_mismatch=self.board_mismatch.finding,
             extra={"frames measured": live.measured, "frames queued": live.queued,
                    "views refused (queue full)": live.refused,
+                   "image qos": self.images.choice.text(),
+                   "frames missed (publisher sequence)": self.images.gaps.missed
+                   if self.images.gaps.known else "unknown",
+                   "dds transport": self.transport,
                    "tone curve": self.detector.tone.text(),
                    "board check": self.last_board_check}))
 
@@ -343,10 +359,11 @@ def main(args: list[str] | None = None) -> int:
     # other core stays free for the camera's frames (tracking, overlay, DDS); set
     # ARTCAL_THREADS to give it more.
     os.environ.setdefault("ARTCAL_THREADS", "1")
+    transport = use_large_shared_memory()  # before rclpy creates the participant
     stop = StopSignals.install()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     try:
-        node = CalibratorNode()
+        node = CalibratorNode(transport=transport)
     except (ParameterError, ArtcalError) as e:
         rclpy.logging.get_logger("calibrator").fatal(f"refusing to start: {e}")
         rclpy.try_shutdown()

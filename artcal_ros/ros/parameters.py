@@ -21,9 +21,11 @@ from rclpy.parameter import Parameter
 from artcal_ros.core.errors import ParameterError
 from artcal_ros.core.params import PARAMETERS, ParamValue, validate
 
-# Changing these would invalidate the views already collected: restart the node instead.
+# Changing these would invalidate the views already collected, or the subscription made at
+# start-up: restart the node instead.
 READ_ONLY = frozenset(s.name for s in PARAMETERS if s.name.startswith("board.")
-                      or s.name in ("points", "camera_model", "image_transport", "resume"))
+                      or s.name in ("points", "camera_model", "image_transport", "image_qos",
+                                   "resume"))
 
 
 def _descriptor(name: str) -> ParameterDescriptor:

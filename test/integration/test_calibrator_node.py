@@ -406,6 +406,7 @@ def test_compressed_transport(tmp_path: Path, probe: Probe, bag: CalibrationBag)
     ("board.marker_length:=abc", "board.marker_length", True),
     ("max_views:=3", "max_views", False),
     ("calibrate.k_coefficients:=4", "calibrate.k_coefficients", False),
+    ("image_qos:=sometimes", "image_qos", True),
 ])
 def test_bad_parameter_refuses_to_start(tmp_path: Path, param: str, name: str,
                                         in_file: bool) -> None:
