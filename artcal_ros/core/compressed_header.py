@@ -60,9 +60,11 @@ def compressed_size(data: bytes | np.ndarray) -> tuple[int, int] | None:
             height = int.from_bytes(raw[pos + 5 : pos + 7], "big")
             width = int.from_bytes(raw[pos + 7 : pos + 9], "big")
             return width, height
-        if marker == 0xDA or length < 2:  # start of scan before any frame header
+        if marker == 0xDA:  # start of scan before any frame header
             return None
-        pos += 2 + length
+        # libjpeg skips length - 2 bytes after the length field, and none when length < 2
+        # (a damaged segment it reads through): so must we, or its size would go unchecked.
+        pos += 2 + max(length, 2)
     return None
 
 

@@ -6,8 +6,12 @@ be bytes, bytearray, memoryview, array.array, a list of ints or a numpy array.
 
 Output conventions (what detection and calibration take):
 
-- mono encodings -> (H, W) uint8 or uint16
-- colour encodings (rgb, bgr, rgba, bgra, bayer, yuv422) -> (H, W, 3) BGR, uint8 or uint16
+- :func:`image_to_numpy`: mono encodings -> (H, W) uint8 or uint16; colour encodings (rgb,
+  bgr, rgba, bgra, bayer, yuv422) -> (H, W, 3) BGR, uint8 or uint16
+- :func:`image_to_gray`, :func:`compressed_to_gray`: (H, W) uint8 or uint16 for every
+  encoding, what the detector reads, made from the message in one pass where OpenCV can
+  (the luma of yuv422, a grey demosaic of bayer, a grey decode of jpeg) instead of through
+  a BGR copy
 
 Row padding (``step`` > width * bytes per pixel) and big-endian 16-bit data are honoured.
 mono and bgr images come back as views of the message buffer, without a copy: they may be
@@ -31,7 +35,9 @@ __all__ = [
     "ENCODINGS",
     "ImageFormatError",
     "compressed_size",
+    "compressed_to_gray",
     "compressed_to_numpy",
+    "image_to_gray",
     "image_to_numpy",
     "numpy_to_image",
     "to_gray",
@@ -43,7 +49,8 @@ class _Encoding:
     kind: str  # "mono" | "bgr" | "rgb" | "bgra" | "rgba" | "bayer" | "uyvy" | "yuyv"
     channels: int  # channels per pixel in the message buffer (2 bytes per pixel for yuv422)
     depth: int  # bytes per channel
-    cv_code: int = -1  # OpenCV conversion to BGR, where one is needed
+    to_bgr: int = -1  # OpenCV conversion to image_to_numpy's output; -1: the buffer as is
+    to_gray: int = -1  # OpenCV conversion to grey; -1: the buffer as is
 
     @property
     def bytes_per_pixel(self) -> int:
@@ -53,35 +60,48 @@ class _Encoding:
 # OpenCV names Bayer patterns by the 2x2 block starting at the second row and column, so
 # the ROS pattern RGGB is OpenCV's BG (the same mapping cv_bridge uses).
 _BAYER = {
-    "rggb": cv2.COLOR_BayerBG2BGR,
-    "bggr": cv2.COLOR_BayerRG2BGR,
-    "gbrg": cv2.COLOR_BayerGR2BGR,
-    "grbg": cv2.COLOR_BayerGB2BGR,
+    "rggb": (cv2.COLOR_BayerBG2BGR, cv2.COLOR_BayerBG2GRAY),
+    "bggr": (cv2.COLOR_BayerRG2BGR, cv2.COLOR_BayerRG2GRAY),
+    "gbrg": (cv2.COLOR_BayerGR2BGR, cv2.COLOR_BayerGR2GRAY),
+    "grbg": (cv2.COLOR_BayerGB2BGR, cv2.COLOR_BayerGB2GRAY),
 }
+_MONO = _Encoding("mono", 1, 1)
+_MONO16 = _Encoding("mono", 1, 2)
+_BGR = _Encoding("bgr", 3, 1, to_gray=cv2.COLOR_BGR2GRAY)
+_BGR16 = _Encoding("bgr", 3, 2, to_gray=cv2.COLOR_BGR2GRAY)
+_BGRA = _Encoding("bgra", 4, 1, cv2.COLOR_BGRA2BGR, cv2.COLOR_BGRA2GRAY)
+_UYVY = _Encoding("uyvy", 2, 1, cv2.COLOR_YUV2BGR_UYVY, cv2.COLOR_YUV2GRAY_UYVY)
+_YUYV = _Encoding("yuyv", 2, 1, cv2.COLOR_YUV2BGR_YUY2, cv2.COLOR_YUV2GRAY_YUY2)
 
 ENCODINGS: dict[str, _Encoding] = {
-    "mono8": _Encoding("mono", 1, 1),
-    "8UC1": _Encoding("mono", 1, 1),
-    "mono16": _Encoding("mono", 1, 2),
-    "16UC1": _Encoding("mono", 1, 2),
-    "bgr8": _Encoding("bgr", 3, 1),
-    "8UC3": _Encoding("bgr", 3, 1),
-    "rgb8": _Encoding("rgb", 3, 1),
-    "bgra8": _Encoding("bgra", 4, 1),
-    "8UC4": _Encoding("bgra", 4, 1),
-    "rgba8": _Encoding("rgba", 4, 1),
-    "bgr16": _Encoding("bgr", 3, 2),
-    "16UC3": _Encoding("bgr", 3, 2),
-    "rgb16": _Encoding("rgb", 3, 2),
-    "bgra16": _Encoding("bgra", 4, 2),
-    "rgba16": _Encoding("rgba", 4, 2),
-    **{f"bayer_{p}8": _Encoding("bayer", 1, 1, code) for p, code in _BAYER.items()},
-    **{f"bayer_{p}16": _Encoding("bayer", 1, 2, code) for p, code in _BAYER.items()},
-    "yuv422": _Encoding("uyvy", 2, 1, cv2.COLOR_YUV2BGR_UYVY),
-    "uyvy": _Encoding("uyvy", 2, 1, cv2.COLOR_YUV2BGR_UYVY),
-    "yuv422_yuy2": _Encoding("yuyv", 2, 1, cv2.COLOR_YUV2BGR_YUY2),
-    "yuyv": _Encoding("yuyv", 2, 1, cv2.COLOR_YUV2BGR_YUY2),
+    "mono8": _MONO,
+    "8UC1": _MONO,
+    "mono16": _MONO16,
+    "16UC1": _MONO16,
+    "bgr8": _BGR,
+    "8UC3": _BGR,
+    "rgb8": _Encoding("rgb", 3, 1, cv2.COLOR_RGB2BGR, cv2.COLOR_RGB2GRAY),
+    "bgra8": _BGRA,
+    "8UC4": _BGRA,
+    "rgba8": _Encoding("rgba", 4, 1, cv2.COLOR_RGBA2BGR, cv2.COLOR_RGBA2GRAY),
+    "bgr16": _BGR16,
+    "16UC3": _BGR16,
+    "rgb16": _Encoding("rgb", 3, 2, cv2.COLOR_RGB2BGR, cv2.COLOR_RGB2GRAY),
+    "bgra16": _Encoding("bgra", 4, 2, cv2.COLOR_BGRA2BGR, cv2.COLOR_BGRA2GRAY),
+    "rgba16": _Encoding("rgba", 4, 2, cv2.COLOR_RGBA2BGR, cv2.COLOR_RGBA2GRAY),
+    **{f"bayer_{p}8": _Encoding("bayer", 1, 1, *codes) for p, codes in _BAYER.items()},
+    **{f"bayer_{p}16": _Encoding("bayer", 1, 2, *codes) for p, codes in _BAYER.items()},
+    "yuv422": _UYVY,
+    "uyvy": _UYVY,
+    "yuv422_yuy2": _YUYV,
+    "yuyv": _YUYV,
 }
+
+# yuv422 from cameras is video range (BT.601: black at Y 16, white at 235), and OpenCV's
+# YUV -> BGR expands it to 0..255; the grey path stretches the luma the same way, so a frame
+# has the same grey levels (clipping, contrast) whichever path the node takes.
+_VIDEO_GAIN = 255.0 / 219.0
+_VIDEO_OFFSET = -16.0 * _VIDEO_GAIN
 
 
 def _field(msg: Any, name: str) -> Any:
@@ -184,18 +204,12 @@ def _as_bytes(data: Any) -> np.ndarray:
     return arr.astype(np.uint8).reshape(-1)
 
 
-def image_to_numpy(msg: Any) -> np.ndarray:
-    """Pixels of a sensor_msgs/Image as a numpy array.
+def _buffer_pixels(msg: Any) -> tuple[np.ndarray, _Encoding, str]:
+    """The header checked, and the pixels as an (H, W, channels) view of the buffer.
 
-    Args:
-        msg: object or dict with ``height``, ``width``, ``encoding``, ``is_bigendian``,
-            ``step`` (bytes per row) and ``data`` (step * height bytes).
-
-    Returns:
-        (H, W) uint8/uint16 for mono encodings; (H, W, 3) BGR uint8/uint16 otherwise.
-
-    Raises:
-        ImageFormatError: naming the field that is wrong (encoding, step, data, width...).
+    16-bit data comes in native byte order (a copy only when the bytes must be swapped or
+    the rows start at odd addresses); the padding at the end of each row is skipped by the
+    view, not copied.
     """
     height = _int_field(msg, "height")
     width = _int_field(msg, "width")
@@ -223,38 +237,70 @@ def image_to_numpy(msg: Any) -> np.ndarray:
             f"data has {buf.size} bytes, expected step*height = {step * height} "
             f"(step {step}, height {height}); the frame was cut short or its header is wrong"
         )
-    # A (H, row_bytes) view: the padding at the end of each row is skipped, not copied.
     rows = buf.reshape(height, step)[:, :row_bytes]
     if enc.depth == 2:
         rows = rows.view(">u2" if big_endian else "<u2")
-        # to native order: a copy only when the bytes must be swapped
         rows = rows.view(np.uint16) if rows.dtype.isnative else rows.astype(np.uint16)
-    pixels = rows.reshape(height, width, enc.channels)
+        if not rows.flags.aligned:
+            # an odd step starts rows at odd addresses: OpenCV refuses such arrays
+            rows = np.ascontiguousarray(rows)
+    return rows.reshape(height, width, enc.channels), enc, encoding
+
+
+def _convert(pixels: np.ndarray, code: int, encoding: str) -> np.ndarray:
+    """``pixels`` through OpenCV conversion ``code``; with code -1, the buffer as it is."""
+    # cvtColor reads row-padded views as they are: no contiguous copy first.
+    src = pixels[:, :, 0] if pixels.shape[2] == 1 else pixels
+    if code < 0:
+        return src
     try:
-        return _to_bgr(pixels, enc)
+        return cv2.cvtColor(src, code)
     except cv2.error as err:  # e.g. a mosaic too small to demosaic
+        height, width = pixels.shape[:2]
         raise ImageFormatError(
-            f"a {width}x{height} {encoding} image cannot be converted to BGR "
+            f"a {width}x{height} {encoding} image cannot be converted "
             f"({err.msg.strip() if hasattr(err, 'msg') else err})"
         ) from None
 
 
-def _to_bgr(pixels: np.ndarray, enc: _Encoding) -> np.ndarray:
-    """(H, W, C) buffer pixels -> the output convention of image_to_numpy."""
-    if enc.kind == "mono":
-        return pixels[:, :, 0]
-    if enc.kind == "bgr":
-        return pixels
-    if enc.kind == "rgb":
-        return np.ascontiguousarray(pixels[:, :, ::-1])
-    if enc.kind == "bgra":
-        return np.ascontiguousarray(pixels[:, :, :3])
-    if enc.kind == "rgba":
-        return np.ascontiguousarray(pixels[:, :, 2::-1])
-    if enc.kind == "bayer":
-        return cv2.cvtColor(np.ascontiguousarray(pixels[:, :, 0]), enc.cv_code)
-    # yuv422: 2 bytes per pixel, chroma shared by pixel pairs; OpenCV takes (H, W, 2).
-    return cv2.cvtColor(np.ascontiguousarray(pixels), enc.cv_code)
+def image_to_numpy(msg: Any) -> np.ndarray:
+    """Pixels of a sensor_msgs/Image as a numpy array.
+
+    Args:
+        msg: object or dict with ``height``, ``width``, ``encoding``, ``is_bigendian``,
+            ``step`` (bytes per row) and ``data`` (step * height bytes).
+
+    Returns:
+        (H, W) uint8/uint16 for mono encodings; (H, W, 3) BGR uint8/uint16 otherwise.
+
+    Raises:
+        ImageFormatError: naming the field that is wrong (encoding, step, data, width...).
+    """
+    pixels, enc, encoding = _buffer_pixels(msg)
+    return _convert(pixels, enc.to_bgr, encoding)
+
+
+def image_to_gray(msg: Any) -> np.ndarray:
+    """The grey image detection reads, straight from a sensor_msgs/Image.
+
+    The same grey levels as ``to_gray(image_to_numpy(msg))`` (to rounding), without the
+    BGR image in between: mono8/mono16 come back as views of the buffer, yuv422 as its
+    stretched luma, bayer demosaiced to grey, rgb/bgr(a) in one conversion.
+
+    Args:
+        msg: as for :func:`image_to_numpy`.
+
+    Returns:
+        (H, W) uint8 or uint16 (16-bit encodings).
+
+    Raises:
+        ImageFormatError: naming the field that is wrong (encoding, step, data, width...).
+    """
+    pixels, enc, encoding = _buffer_pixels(msg)
+    gray = _convert(pixels, enc.to_gray, encoding)
+    if enc.kind in ("uyvy", "yuyv"):
+        cv2.convertScaleAbs(gray, dst=gray, alpha=_VIDEO_GAIN, beta=_VIDEO_OFFSET)
+    return gray
 
 
 def to_gray(image: np.ndarray) -> np.ndarray:
@@ -367,19 +413,16 @@ def _mosaic(bgr: np.ndarray, encoding: str) -> np.ndarray:
     return out
 
 
-def compressed_to_numpy(msg: Any) -> np.ndarray:
-    """Pixels of a sensor_msgs/CompressedImage (jpeg or png).
+@dataclass(frozen=True)
+class _CompressedFrame:
+    codec: str  # "jpeg" | "jpg" | "png", as the format field names it
+    data: np.ndarray  # (N,) uint8, the compressed stream, its header checked
+    mono: bool  # the camera's image was grey (image_transport's first encoding)
+    rgb_order: bool  # the codec was given RGB pixels as if BGR (a "compressed rgb8" target)
 
-    Args:
-        msg: object or dict with ``format`` ("jpeg", "png", or image_transport's
-            "<encoding>; <jpeg|png> compressed <encoding>") and ``data``.
 
-    Returns:
-        (H, W) uint8/uint16 for grey images, (H, W, 3) BGR uint8/uint16 for colour ones.
-
-    Raises:
-        ImageFormatError: unsupported format, or data that does not decode.
-    """
+def _compressed_frame(msg: Any) -> _CompressedFrame:
+    """The format field read, and the data checked, of a CompressedImage."""
     fmt = str(_field(msg, "format")).strip()
     original, _, compressed = fmt.partition(";")
     described = (compressed or original).strip().lower()
@@ -393,23 +436,80 @@ def compressed_to_numpy(msg: Any) -> np.ndarray:
         )
     buf = _as_bytes(_field(msg, "data"))
     check_compressed_header(buf, codec)
+    # image_transport names the channel order of the compressed pixels after the codec;
+    # the codec itself stores what it was given as BGR, so "compressed rgb8" is swapped.
+    target = described.split()[-1] if compressed else ""
+    mono = original.strip().lower().startswith(("mono", "8uc1", "16uc1"))
+    return _CompressedFrame(codec, buf, mono, target.startswith("rgb"))
+
+
+def _decode(frame: _CompressedFrame, flags: int) -> np.ndarray:
     try:
-        image = cv2.imdecode(buf, cv2.IMREAD_UNCHANGED)
+        image = cv2.imdecode(frame.data, flags)
     except cv2.error:
         image = None
     if image is None or image.dtype not in (np.uint8, np.uint16) or image.size == 0:
         raise ImageFormatError(
-            f"data ({buf.size} bytes) does not decode as a {codec} image; the frame is "
-            "damaged or was cut short"
+            f"data ({frame.data.size} bytes) does not decode as a {frame.codec} image; the "
+            "frame is damaged or was cut short"
         )
-    if image.ndim == 3 and image.shape[2] == 4:
-        image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
-    # image_transport names the channel order of the compressed pixels after the codec;
-    # the codec itself stores what it was given as BGR, so "compressed rgb8" is swapped.
-    target = described.split()[-1] if compressed else ""
-    if image.ndim == 3 and target.startswith("rgb"):
-        image = np.ascontiguousarray(image[:, :, ::-1])
-    if image.ndim == 3 and original.strip().lower().startswith(("mono", "8uc1", "16uc1")):
-        image = cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
     return image
 
+
+def compressed_to_numpy(msg: Any) -> np.ndarray:
+    """Pixels of a sensor_msgs/CompressedImage (jpeg or png).
+
+    Args:
+        msg: object or dict with ``format`` ("jpeg", "png", or image_transport's
+            "<encoding>; <jpeg|png> compressed <encoding>") and ``data``.
+
+    Returns:
+        (H, W) uint8/uint16 for grey images, (H, W, 3) BGR uint8/uint16 for colour ones.
+
+    Raises:
+        ImageFormatError: unsupported format, or data that does not decode.
+    """
+    frame = _compressed_frame(msg)
+    if frame.mono:
+        return _gray_decode(frame)
+    image = _decode(frame, cv2.IMREAD_UNCHANGED)
+    if image.ndim == 3 and image.shape[2] == 4:
+        image = cv2.cvtColor(image, cv2.COLOR_RGBA2BGR if frame.rgb_order else cv2.COLOR_BGRA2BGR)
+    elif image.ndim == 3 and frame.rgb_order:
+        image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
+    return image
+
+
+def compressed_to_gray(msg: Any) -> np.ndarray:
+    """The grey image detection reads, straight from a sensor_msgs/CompressedImage.
+
+    The same grey levels as ``to_gray(compressed_to_numpy(msg))`` (a jpeg's to rounding): a
+    jpeg is decoded to its luma only, without converting its colour.
+
+    Args:
+        msg: as for :func:`compressed_to_numpy`.
+
+    Returns:
+        (H, W) uint8, or uint16 for a 16-bit png.
+
+    Raises:
+        ImageFormatError: unsupported format, or data that does not decode.
+    """
+    return _gray_decode(_compressed_frame(msg))
+
+
+def _gray_decode(frame: _CompressedFrame) -> np.ndarray:
+    # A jpeg stores luma apart from chroma: decoding the luma alone skips the chroma's
+    # upsampling and colour conversion. Its luma weighs red as blue in a "compressed rgb8"
+    # stream, though, and libpng's own grey conversion rounds unlike OpenCV's; those are
+    # decoded in colour and weighed here.
+    if frame.codec != "png" and not frame.rgb_order:
+        return _decode(frame, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH)
+    image = _decode(frame, cv2.IMREAD_UNCHANGED)
+    if image.ndim == 2:
+        return image
+    if frame.rgb_order:
+        code = cv2.COLOR_RGBA2GRAY if image.shape[2] == 4 else cv2.COLOR_RGB2GRAY
+    else:
+        code = cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY
+    return cv2.cvtColor(image, code)

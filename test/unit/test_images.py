@@ -1,4 +1,5 @@
-"""sensor_msgs/Image <-> numpy: hand-built buffers for every encoding, and every error."""
+"""sensor_msgs/Image <-> numpy: hand-built buffers for every encoding, the grey path against
+the grey of a known image, and every error."""
 
 from __future__ import annotations
 
@@ -14,7 +15,9 @@ import pytest
 from artcal_ros.core.images import (
     ENCODINGS,
     ImageFormatError,
+    compressed_to_gray,
     compressed_to_numpy,
+    image_to_gray,
     image_to_numpy,
     numpy_to_image,
     to_gray,
@@ -218,6 +221,86 @@ def test_numpy_to_image_alpha_and_raw_bayer() -> None:
     assert sampled == mosaic.tobytes()
 
 
+# -- image_to_gray, row padding, byte order --------------------------------------------------
+
+
+def smooth_bgr(h: int, w: int, depth: int) -> np.ndarray:
+    """A BGR image whose colour changes slowly, with channels far apart (swaps show)."""
+    y, x = np.mgrid[0:h, 0:w] / max(h, w)
+    bgr = np.dstack([40 + 60 * x, 120 + 80 * y, 220 - 90 * x * y])
+    return (bgr * (1 if depth == 1 else 257)).round().astype(np.uint8 if depth == 1
+                                                               else np.uint16)
+
+
+@pytest.mark.parametrize("encoding", sorted(ENCODINGS))
+def test_image_to_gray_is_the_grey_of_the_image(encoding: str) -> None:
+    enc = ENCODINGS[encoding]
+    bgr = smooth_bgr(24, 32, enc.depth)
+    truth = to_gray(bgr)
+    fields = numpy_to_image(truth if enc.kind == "mono" else bgr, encoding)
+    gray = image_to_gray(fields)
+    assert gray.shape == (24, 32) and gray.dtype == truth.dtype
+    level = 1 if enc.depth == 1 else 257  # one 8-bit grey level
+    inner = (slice(2, -2), slice(2, -2))  # demosaicing sees whole neighbourhoods
+    if enc.kind == "bayer":
+        # the mosaic keeps one colour per pixel; on a smooth image the rest interpolates
+        # to within 3 levels, and the colour image comes back as close
+        tolerance = 3 * level
+        colour = image_to_numpy(fields)
+        np.testing.assert_allclose(colour[inner].astype(float), bgr[inner].astype(float),
+                                   atol=tolerance)
+    elif enc.kind in ("uyvy", "yuyv"):
+        tolerance = 1  # the luma, stretched from video range, to rounding
+    else:
+        tolerance = 0
+    np.testing.assert_allclose(gray[inner].astype(float), truth[inner].astype(float),
+                               atol=tolerance)
+    # the same grey the BGR path gives, whichever path the node takes
+    via_bgr = to_gray(image_to_numpy(fields))
+    np.testing.assert_allclose(gray[inner].astype(float), via_bgr[inner].astype(float),
+                               atol=2 * level if enc.kind == "bayer" else tolerance)
+    if enc.depth == 2:
+        assert int(gray.max()) > 255  # 16 bits kept, not scaled to 8
+
+
+def padded_big_endian(fields: dict[str, Any], pad: int, big_endian: bool) -> dict[str, Any]:
+    """``fields`` with ``pad`` junk bytes after each row, and 16-bit samples byte-swapped."""
+    step = fields["step"]
+    rows = np.frombuffer(fields["data"], np.uint8).reshape(fields["height"], step)
+    if big_endian:
+        rows = rows.reshape(fields["height"], step // 2, 2)[:, :, ::-1].reshape(-1, step)
+    junk = np.full((fields["height"], pad), 0xEE, np.uint8)
+    return {**fields, "step": step + pad, "is_bigendian": int(big_endian),
+            "data": np.hstack([rows, junk]).tobytes()}
+
+
+@pytest.mark.parametrize("encoding", sorted(ENCODINGS))
+def test_row_padding_and_byte_order_change_nothing(encoding: str) -> None:
+    enc = ENCODINGS[encoding]
+    bgr = smooth_bgr(6, 8, enc.depth)
+    plain = numpy_to_image(to_gray(bgr) if enc.kind == "mono" else bgr, encoding)
+    orders = [False, True] if enc.depth == 2 else [False]
+    for pad in (1, 3, 64):  # odd pads start rows at odd addresses
+        for big_endian in orders:
+            odd = padded_big_endian(plain, pad, big_endian)
+            np.testing.assert_array_equal(image_to_numpy(odd), image_to_numpy(plain))
+            np.testing.assert_array_equal(image_to_gray(odd), image_to_gray(plain))
+
+
+@pytest.mark.parametrize("encoding", ["mono8", "mono16", "16UC1", "bgr8"])
+def test_buffer_encodings_are_views_without_a_copy(encoding: str) -> None:
+    enc = ENCODINGS[encoding]
+    bgr = smooth_bgr(4, 6, enc.depth)
+    fields = numpy_to_image(to_gray(bgr) if enc.kind == "mono" else bgr, encoding)
+    fields = padded_big_endian(fields, 2 * enc.depth, big_endian=False)
+    data = bytearray(fields["data"])
+    fields["data"] = data
+    buffer = np.frombuffer(data, np.uint8)
+    assert np.shares_memory(image_to_numpy(fields), buffer)
+    if enc.kind == "mono":
+        assert np.shares_memory(image_to_gray(fields), buffer)
+
+
 # -- errors name the field -------------------------------------------------------------------
 
 
@@ -265,33 +348,52 @@ def encoded(ext: str, image: np.ndarray) -> bytes:
     return buf.tobytes()
 
 
-def test_compressed_png_is_lossless_in_8_and_16_bits() -> None:
-    rng = np.random.default_rng(5)
-    mono16 = rng.integers(0, 65536, (7, 9), dtype=np.uint16)
-    out = compressed_to_numpy(SimpleNamespace(format="png", data=encoded(".png", mono16)))
-    assert out.dtype == np.uint16
-    np.testing.assert_array_equal(out, mono16)
-    bgr = rng.integers(0, 256, (7, 9, 3), dtype=np.uint8)
-    out = compressed_to_numpy({"format": "bgr8; png compressed bgr8",
-                               "data": array.array("B", encoded(".png", bgr))})
-    np.testing.assert_array_equal(out, bgr)
-    # pixels that were rgb when compressed come back in BGR order
-    out = compressed_to_numpy(SimpleNamespace(format="rgb8; png compressed rgb8",
-                                              data=encoded(".png", bgr[..., ::-1])))
-    np.testing.assert_array_equal(out, bgr)
+# (format string as drivers write it, codec, what the camera sent, channel order compressed)
+DRIVER_FORMATS = [
+    # image_transport (ROS 2): jpeg converts colour to bgr8 first, png keeps the depth
+    ("bgr8; jpeg compressed bgr8", ".jpg", "bgr8", "bgr"),
+    ("rgb8; jpeg compressed bgr8", ".jpg", "bgr8", "bgr"),
+    ("mono8; jpeg compressed mono8", ".jpg", "mono8", "mono"),
+    ("bgr8; png compressed bgr8", ".png", "bgr8", "bgr"),
+    ("bgr16; png compressed bgr16", ".png", "bgr16", "bgr"),
+    ("mono8; png compressed mono8", ".png", "mono8", "mono"),
+    ("mono16; png compressed mono16", ".png", "mono16", "mono"),
+    ("16UC1; png compressed 16UC1", ".png", "mono16", "mono"),
+    # a colour camera's grey stream, compressed in colour
+    ("mono8; jpeg compressed bgr8", ".jpg", "mono8", "bgr"),
+    # older drivers and ROS 1's image_transport: the codec alone, or rgb pixels kept as rgb
+    ("jpeg", ".jpg", "bgr8", "bgr"),
+    ("jpeg", ".jpg", "mono8", "mono"),
+    ("png", ".png", "bgr8", "bgr"),
+    ("png", ".png", "mono16", "mono"),
+    ("rgb8; png compressed rgb8", ".png", "bgr8", "rgb"),
+    ("rgb8; jpeg compressed rgb8", ".jpg", "bgr8", "rgb"),
+]
 
 
-def test_compressed_jpeg_colour_and_mono() -> None:
-    bgr = np.zeros((16, 16, 3), np.uint8)
-    bgr[:] = (B, G, R)
-    out = compressed_to_numpy(SimpleNamespace(format="rgb8; jpeg compressed bgr8",
-                                              data=encoded(".jpg", bgr)))
-    assert out.shape == (16, 16, 3)
-    np.testing.assert_allclose(out.reshape(-1, 3).mean(axis=0), (B, G, R), atol=3)
-    grey = np.full((16, 16), 123, np.uint8)
-    for fmt in ("jpeg", "mono8; jpeg compressed mono8"):
-        out = compressed_to_numpy(SimpleNamespace(format=fmt, data=encoded(".jpg", grey)))
-        assert out.shape == (16, 16) and abs(int(out.mean()) - 123) <= 1
+@pytest.mark.parametrize(("fmt", "ext", "sent", "order"), DRIVER_FORMATS)
+def test_compressed_driver_formats(fmt: str, ext: str, sent: str, order: str) -> None:
+    depth = 2 if sent.endswith("16") else 1
+    bgr = smooth_bgr(24, 40, depth)
+    grey = to_gray(bgr)
+    pixels = {"bgr": bgr, "rgb": bgr[:, :, ::-1], "mono": grey}[order]
+    if order != "mono" and sent.startswith("mono"):
+        pixels = cv2.cvtColor(grey, cv2.COLOR_GRAY2BGR)
+    frame = SimpleNamespace(format=fmt, data=array.array("B", encoded(ext, pixels)))
+    image = compressed_to_numpy(frame)
+    gray = compressed_to_gray(frame)
+    expected = grey if sent.startswith("mono") else bgr
+    assert image.shape == expected.shape and image.dtype == expected.dtype
+    assert gray.shape == grey.shape and gray.dtype == grey.dtype
+    if ext == ".png":  # lossless, 16 bits included
+        np.testing.assert_array_equal(image, expected)
+        np.testing.assert_array_equal(gray, grey)
+    else:  # jpeg on a smooth image: luma within 3 levels, chroma (subsampled) within 6;
+        # swapped channels would be 100 off
+        np.testing.assert_allclose(image.astype(float), expected.astype(float), atol=6)
+        np.testing.assert_allclose(gray.astype(float), grey.astype(float), atol=3)
+    # the same grey the colour path gives
+    np.testing.assert_allclose(gray.astype(float), to_gray(image).astype(float), atol=1)
 
 
 def test_compressed_errors() -> None:
