@@ -15,11 +15,24 @@ Parameters:
                         (standard ``--ros-args -r from:=to`` remapping works as well)
   wait_for_subscribers  wait until some topic has a subscriber before playing
   wait_timeout          seconds to wait for one; then play anyway (with a warning)
+  qos                   the reliability each topic is offered with: ``recorded`` (default: as
+                        the recording's publishers offered it, like ``ros2 bag play``; from
+                        the bag's ``offered_qos_profiles``, reliable when none is recorded or
+                        the recorded publishers disagree), ``reliable`` or ``best_effort``
+                        (every topic). Durability always follows the recording (a latched
+                        topic stays transient local).
+  until_topic           a sensor_msgs/CameraInfo topic (empty: none). With ``loop``, playing
+                        stops at the end of the pass during which a message arrived on it,
+                        e.g. the calibrator's ``camera_info`` after a successful
+                        ``~/calibrate`` (subscribed reliable and transient local, so a
+                        latched result counts too)
 
 Messages are republished as recorded (serialized CDR bytes), so any type whose
-interface package is installed can be played without decoding. Exit status: 0
-at the end (or on Ctrl-C), 1 for a bag that cannot be read (one line naming the
-file and where), 2 for a bad parameter.
+interface package is installed can be played without decoding. At ``rate`` 0 a reliable
+topic keeps every message until its subscribers have acknowledged it; a best-effort one
+is sent as fast as it is read. Exit status: 0 at the end (also when ``until_topic`` ended
+a loop, or on Ctrl-C), 1 for a bag that cannot be read (one line naming the file and
+where), 2 for a bad parameter.
 """
 
 from __future__ import annotations
@@ -34,15 +47,17 @@ from typing import Any
 import rclpy
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.duration import Duration
-from rclpy.exceptions import ParameterUninitializedException
-from rclpy.executors import ExternalShutdownException
+from rclpy.exceptions import InvalidTopicNameException, ParameterUninitializedException
+from rclpy.executors import ExternalShutdownException, SingleThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.publisher import Publisher
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
+from sensor_msgs.msg import CameraInfo
 
 from artcal_ros.bag import BagMessage, BagReader
+from artcal_ros.bag.qos import RecordedQos, recorded_qos
 from artcal_ros.core.errors import BagError, ParameterError
 from artcal_ros.ros.msgs import message_class
 from artcal_ros.ros.signals import StopSignals
@@ -60,6 +75,8 @@ class ReplayConfig:
     remap: tuple[tuple[str, str], ...] = ()
     wait_for_subscribers: bool = True
     wait_timeout: float = 30.0
+    qos: str = "recorded"
+    until_topic: str = ""
 
     def target(self, topic: str) -> str:
         """The name a recorded topic is published under."""
@@ -73,7 +90,18 @@ _SCALARS: dict[str, tuple[Any, str]] = {
     "start_offset": (0.0, "seconds of the recording to skip"),
     "wait_for_subscribers": (True, "wait for a subscriber before playing"),
     "wait_timeout": (30.0, "seconds to wait for a subscriber, then play anyway"),
+    "qos": ("recorded", "publisher reliability: recorded, reliable or best_effort"),
+    "until_topic": ("", "CameraInfo topic: with loop, stop after the pass it got a message"),
 }
+QOS_CHOICES = ("recorded", "reliable", "best_effort")
+_RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE,
+                "best_effort": ReliabilityPolicy.BEST_EFFORT}
+_DURABILITY = {"volatile": DurabilityPolicy.VOLATILE,
+               "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}
+# A result latched before we subscribed must still reach us.
+UNTIL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+                       reliability=ReliabilityPolicy.RELIABLE,
+                       durability=DurabilityPolicy.TRANSIENT_LOCAL)
 _ARRAYS = {"topics": "recorded topics to play (empty: all)",
            "remap": "list of from:=to topic renamings"}
 
@@ -90,6 +118,19 @@ def _flag(name: str, value: Any) -> bool:
     if not isinstance(value, bool):
         raise ParameterError(f"parameter '{name}': expected true or false, got {value!r}")
     return value
+
+
+def _choice(name: str, value: Any, choices: Sequence[str]) -> str:
+    if value not in choices:
+        raise ParameterError(f"parameter '{name}': {value!r} is not one of "
+                             f"{', '.join(choices)}")
+    return str(value)
+
+
+def _text(name: str, value: Any) -> str:
+    if not isinstance(value, str):
+        raise ParameterError(f"parameter '{name}': expected a string, got {value!r}")
+    return value.strip()
 
 
 def parse_remap(entries: Sequence[str]) -> tuple[tuple[str, str], ...]:
@@ -130,16 +171,21 @@ def declare_replay_parameters(node: Node) -> ReplayConfig:
         start_offset=_number("start_offset", value["start_offset"]),
         topics=tuple(arrays["topics"]), remap=parse_remap(arrays["remap"]),
         wait_for_subscribers=_flag("wait_for_subscribers", value["wait_for_subscribers"]),
-        wait_timeout=_number("wait_timeout", value["wait_timeout"]))
+        wait_timeout=_number("wait_timeout", value["wait_timeout"]),
+        qos=_choice("qos", value["qos"], QOS_CHOICES),
+        until_topic=_text("until_topic", value["until_topic"]))
 
 
-def _latched(reader: BagReader, topic: str) -> bool:
-    """Whether the recording says ``topic`` was offered transient local (e.g. /tf_static)."""
-    for entry in (reader.metadata or {}).get("topics_with_message_count") or []:
-        tm = entry.get("topic_metadata") or {}
-        if tm.get("name") == topic:
-            return "transient_local" in str(tm.get("offered_qos_profiles", ""))
-    return False
+def publisher_qos(recorded: RecordedQos, config: ReplayConfig) -> QoSProfile:
+    """The profile to offer a recorded topic with: its recorded durability, the reliability
+    ``config.qos`` asks for (see the module docstring)."""
+    reliability = recorded.reliability if config.qos == "recorded" else config.qos
+    # At rate 0 nothing paces the stream: a reliable topic keeps every message until its
+    # subscribers have it, so they lose none however far behind they fall.
+    keep_all = config.rate == 0 and reliability == "reliable"
+    return QoSProfile(history=HistoryPolicy.KEEP_ALL if keep_all else HistoryPolicy.KEEP_LAST,
+                      depth=10, reliability=_RELIABILITY[reliability],
+                      durability=_DURABILITY[recorded.durability])
 
 
 class Player:
@@ -163,23 +209,53 @@ class Player:
                                  f"(it has {', '.join(sorted(recorded)) or 'no topics'})")
         wanted = config.topics or tuple(sorted(recorded))
         self.publishers: dict[str, Publisher] = {}
+        self.offered: dict[str, str] = {}  # topic -> how it is offered, for the log
         for topic in wanted:
             try:
                 cls = message_class(recorded[topic])
             except (ImportError, ValueError) as e:
                 self.log.warning(f"skipping {topic}: type {recorded[topic]!r} unavailable ({e})")
                 continue
-            # At rate 0 nothing paces the stream: keep every message until reliable
-            # subscribers have it, so they lose none however far behind they fall.
-            qos = QoSProfile(history=HistoryPolicy.KEEP_ALL if config.rate == 0
-                             else HistoryPolicy.KEEP_LAST, depth=10,
-                             reliability=ReliabilityPolicy.RELIABLE,
-                             durability=DurabilityPolicy.TRANSIENT_LOCAL
-                             if _latched(self.reader, topic) else DurabilityPolicy.VOLATILE)
+            offer = recorded_qos(self.reader, topic)
+            if offer.note and config.qos == "recorded":
+                self.log.warning(f"{topic}: {offer.note}")
+            qos = publisher_qos(offer, config)
             self.publishers[topic] = node.create_publisher(cls, config.target(topic), qos)
+            self.offered[topic] = (
+                f"{_name(qos.reliability)}, {_name(qos.durability)}: " + (
+                    f"recorded, {offer.source}" if config.qos == "recorded"
+                    else "the qos parameter"))
         if not self.publishers:
             raise ParameterError(f"{config.bag}: none of its topics can be played")
         self.played = 0
+        self.passes = 0  # complete passes through the recording
+        self._until_seen = threading.Event()
+        self._executor: SingleThreadedExecutor | None = None
+        if config.until_topic:
+            try:
+                node.create_subscription(CameraInfo, config.until_topic,
+                                         lambda _msg: self._until_seen.set(), UNTIL_QOS)
+            except InvalidTopicNameException as e:
+                raise ParameterError(f"parameter 'until_topic': {config.until_topic!r} is not "
+                                     f"a valid topic name ({str(e).splitlines()[0]})") from None
+            # Spun only between passes, here: it takes what arrived meanwhile.
+            self._executor = SingleThreadedExecutor(context=node.context)
+            self._executor.add_node(node)
+
+    @property
+    def until_resolved(self) -> str:
+        """``until_topic`` as resolved by the node (remappings and namespace applied)."""
+        return self.node.resolve_topic_name(self.config.until_topic)
+
+    def until_arrived(self) -> bool:
+        """Whether a message came on ``until_topic`` (False when none is set)."""
+        if self._executor is None:
+            return False
+        for _ in range(10):  # a few rounds: other work (parameter requests) may come first
+            if self._until_seen.is_set():
+                break
+            self._executor.spin_once(timeout_sec=0.0)
+        return self._until_seen.is_set()
 
     def _ok(self) -> bool:
         return rclpy.ok() and not self._stop.is_set()
@@ -233,7 +309,12 @@ class Player:
                 pub = self.publishers[m.topic]
                 pub.publish(m.data)
                 self.played += 1
+            self.passes += 1
             if not self.config.loop:
+                return
+            if self.until_arrived():
+                self.log.info(f"a message came on {self.until_resolved}: stopping after "
+                              f"{self.passes} passes")
                 return
 
     def flush(self) -> None:
@@ -244,7 +325,14 @@ class Player:
         self.log.debug(f"flushed in {time.monotonic() - t0:.2f} s")
 
     def close(self) -> None:
+        if self._executor is not None:
+            self._executor.shutdown(timeout_sec=1.0)
         self.reader.close()
+
+
+def _name(policy: Any) -> str:
+    """``ReliabilityPolicy.BEST_EFFORT`` as ``best_effort``."""
+    return str(policy.name).lower()
 
 
 def main(args: list[str] | None = None) -> int:
@@ -257,8 +345,8 @@ def main(args: list[str] | None = None) -> int:
     player: Player | None = None
     try:
         player = Player(node, declare_replay_parameters(node), stop=stop.event)
-        names = ", ".join(f"{t} -> {p.topic_name}" if t != p.topic_name else t
-                          for t, p in player.publishers.items())
+        names = ", ".join((f"{t} -> {p.topic_name}" if t != p.topic_name else t)
+                          + f" ({player.offered[t]})" for t, p in player.publishers.items())
         log.info(f"playing {player.config.bag}: {names}")
         if player.config.wait_for_subscribers and not player.wait_for_subscribers() \
                 and not stop.is_set():
