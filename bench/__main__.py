@@ -25,6 +25,7 @@ def main(argv: list[str] | None = None) -> int:
         ("exposure sweep", ["bench.exposure", *quick]),
         ("other boards", ["bench.boards", *quick]),
         ("speed", ["bench.speed", *quick]),
+        ("image conversion", ["bench.conversion", *quick]),
         ("calibration", ["bench.calibration", *quick]),
         ("tone curve and edge shift", ["bench.tone", *quick]),
         ("solve time", ["bench.solve_time", *quick]),
