@@ -11,8 +11,8 @@ $(STAMP): requirements.txt setup.py setup.cfg package.xml
 	test -x $(PY) || $(PYTHON) -m venv $(VENV)
 	$(PY) -m pip install --quiet --disable-pip-version-check --upgrade pip setuptools wheel
 	$(PY) -m pip install --quiet --disable-pip-version-check -r requirements.txt
+	@echo "installing artcal_ros; the install compiles the detector's kernels (about half a minute)"
 	$(PY) -m pip install --quiet --disable-pip-version-check --no-deps --no-build-isolation -e .
-	$(PY) -m artcal_ros.synth.warm
 	touch $(STAMP)
 
 demo: $(STAMP)
