@@ -44,9 +44,8 @@ import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
+from artcal_ros.core.compressed import compressed_to_gray, compressed_to_numpy
 from artcal_ros.core.images import (
-    compressed_to_gray,
-    compressed_to_numpy,
     image_to_gray,
     image_to_numpy,
     numpy_to_image,

@@ -111,7 +111,8 @@ def _bag_frames(bag: str, topic: str | None, max_frames: int, budget_s: float,
     ``warn`` is told where it broke.
     """
     from artcal_ros.bag import BagReader
-    from artcal_ros.core.images import compressed_to_numpy, image_to_numpy
+    from artcal_ros.core.compressed import compressed_to_numpy
+    from artcal_ros.core.images import image_to_numpy
 
     start = time.monotonic()
     with BagReader(bag) as reader:

@@ -1,4 +1,6 @@
-"""sensor_msgs/Image and CompressedImage <-> numpy, without cv_bridge and without ROS.
+"""sensor_msgs/Image <-> numpy, without cv_bridge and without ROS.
+
+(sensor_msgs/CompressedImage is decoded by :mod:`artcal_ros.core.compressed`.)
 
 Duck-typed: any object (or dict) with the message's fields works, whether an rclpy
 message, a message decoded from a bag, or :func:`numpy_to_image`'s output. ``data`` may
@@ -8,10 +10,9 @@ Output conventions (what detection and calibration take):
 
 - :func:`image_to_numpy`: mono encodings -> (H, W) uint8 or uint16; colour encodings (rgb,
   bgr, rgba, bgra, bayer, yuv422) -> (H, W, 3) BGR, uint8 or uint16
-- :func:`image_to_gray`, :func:`compressed_to_gray`: (H, W) uint8 or uint16 for every
-  encoding, what the detector reads, made from the message in one pass where OpenCV can
-  (the luma of yuv422, a grey demosaic of bayer, a grey decode of jpeg) instead of through
-  a BGR copy
+- :func:`image_to_gray`: (H, W) uint8 or uint16 for every encoding, what the detector
+  reads, made from the message in one pass where OpenCV can (the luma of yuv422, a grey
+  demosaic of bayer) instead of through a BGR copy
 
 Row padding (``step`` > width * bytes per pixel) and big-endian 16-bit data are honoured.
 mono and bgr images come back as views of the message buffer, without a copy: they may be
@@ -28,15 +29,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-from artcal_ros.core.compressed_header import check_compressed_header, compressed_size
 from artcal_ros.core.errors import ImageFormatError
+from artcal_ros.core.message_fields import as_bytes, get_field
 
 __all__ = [
     "ENCODINGS",
     "ImageFormatError",
-    "compressed_size",
-    "compressed_to_gray",
-    "compressed_to_numpy",
     "image_to_gray",
     "image_to_numpy",
     "numpy_to_image",
@@ -104,21 +102,8 @@ _VIDEO_GAIN = 255.0 / 219.0
 _VIDEO_OFFSET = -16.0 * _VIDEO_GAIN
 
 
-def _field(msg: Any, name: str) -> Any:
-    if isinstance(msg, dict):
-        if name not in msg:
-            raise ImageFormatError(f"the image has no field {name!r}")
-        return msg[name]
-    try:
-        return getattr(msg, name)
-    except AttributeError:
-        raise ImageFormatError(
-            f"the image has no field {name!r} (expected a sensor_msgs/Image-like object)"
-        ) from None
-
-
 def _int_field(msg: Any, name: str) -> int:
-    value = _field(msg, name)
+    value = get_field(msg, name)
     number: int | None = None
     if not isinstance(value, bool | str | bytes):
         try:
@@ -147,7 +132,7 @@ def _big_endian(msg: Any) -> bool:
 
 
 def _encoding_name(msg: Any) -> str:
-    value = _field(msg, "encoding")
+    value = get_field(msg, "encoding")
     if isinstance(value, bytes):
         value = value.decode("ascii", "replace")
     if not isinstance(value, str):
@@ -171,37 +156,6 @@ def lookup_encoding(encoding: Any) -> _Encoding:
             f"unknown encoding {name!r}; supported: {', '.join(ENCODINGS)}"
         )
     return found
-
-
-def _as_bytes(data: Any) -> np.ndarray:
-    """``data`` as a flat uint8 array, without a copy when the buffer allows it."""
-    if isinstance(data, bytes | bytearray | memoryview):
-        try:
-            return np.frombuffer(data, np.uint8)
-        except (TypeError, ValueError):  # a memoryview of a non-contiguous buffer
-            pass
-    elif not isinstance(data, np.ndarray | str):
-        try:
-            return np.frombuffer(memoryview(data).cast("B"), np.uint8)  # array.array and friends
-        except (TypeError, ValueError):
-            pass
-    try:
-        arr = np.asarray(data)
-    except Exception as err:  # any object may come in; none may escape
-        raise ImageFormatError(f"data is not a byte buffer ({type(data).__name__})") from err
-    if arr.dtype == np.uint8 or arr.dtype == np.int8:
-        if arr.ndim == 0:
-            raise ImageFormatError(f"data is a single number, not a byte buffer ({data!r})")
-        return arr.reshape(-1).view(np.uint8)
-    if arr.ndim == 0 or arr.dtype.kind not in "iu" or (
-        arr.size and (arr.min() < 0 or arr.max() > 255)
-    ):
-        kind = f"an array of {arr.dtype.name}" if isinstance(data, np.ndarray) else (
-            type(data).__name__)
-        raise ImageFormatError(
-            f"data is not a sequence of bytes ({kind}); expected bytes or uint8 values 0..255"
-        )
-    return arr.astype(np.uint8).reshape(-1)
 
 
 def _buffer_pixels(msg: Any) -> tuple[np.ndarray, _Encoding, str]:
@@ -231,7 +185,7 @@ def _buffer_pixels(msg: Any) -> tuple[np.ndarray, _Encoding, str]:
         )
     if enc.kind in ("uyvy", "yuyv") and width % 2:
         raise ImageFormatError(f"width {width} must be even for {encoding} (2 pixels share U, V)")
-    buf = _as_bytes(_field(msg, "data"))
+    buf = as_bytes(get_field(msg, "data"))
     if buf.size != step * height:
         raise ImageFormatError(
             f"data has {buf.size} bytes, expected step*height = {step * height} "
@@ -411,105 +365,3 @@ def _mosaic(bgr: np.ndarray, encoding: str) -> np.ndarray:
         dy, dx = divmod(i, 2)
         out[dy::2, dx::2] = bgr[dy::2, dx::2, channel[letter]]
     return out
-
-
-@dataclass(frozen=True)
-class _CompressedFrame:
-    codec: str  # "jpeg" | "jpg" | "png", as the format field names it
-    data: np.ndarray  # (N,) uint8, the compressed stream, its header checked
-    mono: bool  # the camera's image was grey (image_transport's first encoding)
-    rgb_order: bool  # the codec was given RGB pixels as if BGR (a "compressed rgb8" target)
-
-
-def _compressed_frame(msg: Any) -> _CompressedFrame:
-    """The format field read, and the data checked, of a CompressedImage."""
-    fmt = str(_field(msg, "format")).strip()
-    original, _, compressed = fmt.partition(";")
-    described = (compressed or original).strip().lower()
-    codec: str | None = next((c for c in ("jpeg", "jpg", "png") if c in described.split()), None)
-    if codec is None and described in ("", "jpeg", "jpg", "png"):
-        codec = described or None
-    if codec is None or "compresseddepth" in fmt.lower():
-        raise ImageFormatError(
-            f"format {fmt!r} is not supported; expected 'jpeg', 'png' or image_transport's "
-            "'<encoding>; jpeg compressed <encoding>'"
-        )
-    buf = _as_bytes(_field(msg, "data"))
-    check_compressed_header(buf, codec)
-    # image_transport names the channel order of the compressed pixels after the codec;
-    # the codec itself stores what it was given as BGR, so "compressed rgb8" is swapped.
-    target = described.split()[-1] if compressed else ""
-    mono = original.strip().lower().startswith(("mono", "8uc1", "16uc1"))
-    return _CompressedFrame(codec, buf, mono, target.startswith("rgb"))
-
-
-def _decode(frame: _CompressedFrame, flags: int) -> np.ndarray:
-    try:
-        image = cv2.imdecode(frame.data, flags)
-    except cv2.error:
-        image = None
-    if image is None or image.dtype not in (np.uint8, np.uint16) or image.size == 0:
-        raise ImageFormatError(
-            f"data ({frame.data.size} bytes) does not decode as a {frame.codec} image; the "
-            "frame is damaged or was cut short"
-        )
-    return image
-
-
-def compressed_to_numpy(msg: Any) -> np.ndarray:
-    """Pixels of a sensor_msgs/CompressedImage (jpeg or png).
-
-    Args:
-        msg: object or dict with ``format`` ("jpeg", "png", or image_transport's
-            "<encoding>; <jpeg|png> compressed <encoding>") and ``data``.
-
-    Returns:
-        (H, W) uint8/uint16 for grey images, (H, W, 3) BGR uint8/uint16 for colour ones.
-
-    Raises:
-        ImageFormatError: unsupported format, or data that does not decode.
-    """
-    frame = _compressed_frame(msg)
-    if frame.mono:
-        return _gray_decode(frame)
-    image = _decode(frame, cv2.IMREAD_UNCHANGED)
-    if image.ndim == 3 and image.shape[2] == 4:
-        image = cv2.cvtColor(image, cv2.COLOR_RGBA2BGR if frame.rgb_order else cv2.COLOR_BGRA2BGR)
-    elif image.ndim == 3 and frame.rgb_order:
-        image = cv2.cvtColor(image, cv2.COLOR_RGB2BGR)
-    return image
-
-
-def compressed_to_gray(msg: Any) -> np.ndarray:
-    """The grey image detection reads, straight from a sensor_msgs/CompressedImage.
-
-    The same grey levels as ``to_gray(compressed_to_numpy(msg))`` (a jpeg's to rounding): a
-    jpeg is decoded to its luma only, without converting its colour.
-
-    Args:
-        msg: as for :func:`compressed_to_numpy`.
-
-    Returns:
-        (H, W) uint8, or uint16 for a 16-bit png.
-
-    Raises:
-        ImageFormatError: unsupported format, or data that does not decode.
-    """
-    return _gray_decode(_compressed_frame(msg))
-
-
-def _gray_decode(frame: _CompressedFrame) -> np.ndarray:
-    # A jpeg stores luma apart from chroma: decoding the luma alone skips the chroma's
-    # upsampling and colour conversion. Its luma weighs red as blue in a "compressed rgb8"
-    # stream, though, and libpng's own grey conversion rounds unlike OpenCV's; those are
-    # decoded in colour and weighed here.
-    if frame.codec != "png" and not frame.rgb_order:
-        return _decode(frame, cv2.IMREAD_GRAYSCALE | cv2.IMREAD_ANYDEPTH)
-    image = _decode(frame, cv2.IMREAD_UNCHANGED)
-    if image.ndim == 2:
-        return image
-    if frame.rgb_order:
-        code = cv2.COLOR_RGBA2GRAY if image.shape[2] == 4 else cv2.COLOR_RGB2GRAY
-    else:
-        code = cv2.COLOR_BGRA2GRAY if image.shape[2] == 4 else cv2.COLOR_BGR2GRAY
-    return cv2.cvtColor(image, code)

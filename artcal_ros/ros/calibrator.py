@@ -160,7 +160,8 @@ class CalibratorNode(Node):
         self.get_logger().info(f"image qos: {choice.text()}")
 
     def _process(self, msg: Image | CompressedImage) -> None:
-        from artcal_ros.core.images import compressed_to_numpy, image_to_numpy
+        from artcal_ros.core.compressed import compressed_to_numpy
+        from artcal_ros.core.images import image_to_numpy
 
         if self._stopping.is_set():
             return  # shutting down: the node's entities may be gone

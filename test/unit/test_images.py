@@ -12,11 +12,10 @@ import cv2
 import numpy as np
 import pytest
 
+from artcal_ros.core.compressed import compressed_to_gray, compressed_to_numpy
 from artcal_ros.core.images import (
     ENCODINGS,
     ImageFormatError,
-    compressed_to_gray,
-    compressed_to_numpy,
     image_to_gray,
     image_to_numpy,
     numpy_to_image,
