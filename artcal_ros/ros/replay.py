@@ -13,7 +13,8 @@ Parameters:
   topics                recorded topics to play (empty: all)
   remap                 ["from:=to", ...] to publish a recorded topic under another name
                         (standard ``--ros-args -r from:=to`` remapping works as well)
-  wait_for_subscribers  wait until some topic has a subscriber before playing
+  wait_for_subscribers  wait until some topic has a subscriber (and their number has held
+                        for a second: a subscriber may re-subscribe once it has seen us)
   wait_timeout          seconds to wait for one; then play anyway (with a warning)
   qos                   the reliability each topic is offered with: ``recorded`` (default: as
                         the recording's publishers offered it, like ``ros2 bag play``; from
@@ -28,9 +29,11 @@ Parameters:
                         latched result counts too)
 
 Messages are republished as recorded (serialized CDR bytes), so any type whose
-interface package is installed can be played without decoding. At ``rate`` 0 a reliable
-topic keeps every message until its subscribers have acknowledged it; a best-effort one
-is sent as fast as it is read. Exit status: 0 at the end (also when ``until_topic`` ended
+interface package is installed can be played without decoding. The node's Fast DDS
+participant gets the package's large shared-memory segment unless the user chose a
+transport setup (:mod:`artcal_ros.ros.transport`), so large frames offered best effort
+arrive. At ``rate`` 0 a reliable topic keeps every message until its subscribers have
+acknowledged it; a best-effort one is sent as fast as it is read. Exit status: 0 at the end (also when ``until_topic`` ended
 a loop, or on Ctrl-C), 1 for a bag that cannot be read (one line naming the file and
 where), 2 for a bad parameter.
 """
@@ -61,6 +64,7 @@ from artcal_ros.bag.qos import RecordedQos, recorded_qos
 from artcal_ros.core.errors import BagError, ParameterError
 from artcal_ros.ros.msgs import message_class
 from artcal_ros.ros.signals import StopSignals
+from artcal_ros.ros.transport import use_large_shared_memory
 
 
 @dataclass(frozen=True)
@@ -98,6 +102,10 @@ _RELIABILITY = {"reliable": ReliabilityPolicy.RELIABLE,
                 "best_effort": ReliabilityPolicy.BEST_EFFORT}
 _DURABILITY = {"volatile": DurabilityPolicy.VOLATILE,
                "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}
+# Discovery is two-sided, and a subscriber that chooses its QoS from ours (the calibrator's
+# image_qos auto) replaces its subscription once it has seen us: messages sent before the
+# subscription it keeps has matched are lost. Play once the matched count has held this long.
+SETTLE_S = 1.0
 # A result latched before we subscribed must still reach us.
 UNTIL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                        reliability=ReliabilityPolicy.RELIABLE,
@@ -261,16 +269,19 @@ class Player:
         return rclpy.ok() and not self._stop.is_set()
 
     def wait_for_subscribers(self) -> bool:
-        """Poll until a publisher has a subscriber (True), or the timeout or Ctrl-C (False)."""
+        """Poll until the publishers have subscribers and their number has held for
+        SETTLE_S (True), or the timeout or Ctrl-C (False, unless some had matched)."""
         deadline = time.monotonic() + self.config.wait_timeout
+        count, since = 0, time.monotonic()
         while self._ok() and time.monotonic() < deadline:
-            if any(p.get_subscription_count() > 0 for p in self.publishers.values()):
-                # Discovery is two-sided: give the subscriber a moment to match us as well,
-                # or the first messages can be lost.
-                self._sleep_until(time.monotonic() + 0.5)
+            now = time.monotonic()
+            matched = sum(p.get_subscription_count() for p in self.publishers.values())
+            if matched != count:
+                count, since = matched, now
+            elif count > 0 and now - since >= SETTLE_S:
                 return True
             time.sleep(0.05)
-        return False
+        return count > 0
 
     def _sleep_until(self, when: float) -> bool:
         while self._ok():
@@ -338,6 +349,8 @@ def _name(policy: Any) -> str:
 def main(args: list[str] | None = None) -> int:
     """Entry point of ``ros2 run artcal_ros replay`` (console script ``replay``)."""
     stop = StopSignals.install()
+    # a camera's large frames sent best effort arrive only through a segment that holds them
+    transport = use_large_shared_memory()  # before rclpy creates the participant
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     node = rclpy.create_node("replay")
     log = node.get_logger()
@@ -347,7 +360,7 @@ def main(args: list[str] | None = None) -> int:
         player = Player(node, declare_replay_parameters(node), stop=stop.event)
         names = ", ".join((f"{t} -> {p.topic_name}" if t != p.topic_name else t)
                           + f" ({player.offered[t]})" for t, p in player.publishers.items())
-        log.info(f"playing {player.config.bag}: {names}")
+        log.info(f"playing {player.config.bag}: {names}; DDS transport: {transport}")
         if player.config.wait_for_subscribers and not player.wait_for_subscribers() \
                 and not stop.is_set():
             log.warning(f"no subscriber after {player.config.wait_timeout:g} s; playing anyway")
