@@ -50,7 +50,7 @@ class SampleBag:
 SAMPLES = {s.name: s for s in (
     SampleBag("sample", frames=60, seed=2007, encoding="mono8", motion="smooth",
               partial_fraction=0.35),
-    SampleBag("sample_color", frames=40, seed=2020, encoding="bgr8", motion="smooth",
+    SampleBag("sample_color", frames=40, seed=2020, encoding="bgr8", motion="random",
               partial_fraction=0.35),
 )}
 

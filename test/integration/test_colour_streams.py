@@ -130,10 +130,13 @@ def play_into(tmp_path: Path, bag: Path, topic: str, kind: str, counts: NodeCoun
                                     "-r", f"{COLOUR_TOPIC}/compressed:={topic}/compressed"],
                          tmp_path, name=f"replay_{what}_{kind}")
     assert replay.wait(90) == 0, replay.output()
-    # All of them, or as many as arrive: a slow machine still delivers within this time.
-    deadline = time.monotonic() + 20
-    while time.monotonic() < deadline and counts.get("frames seen") - seen0 < frames:
+    # The replay has ended: wait for all of them, or until no more arrive (the count has
+    # held through three diagnostics reports), however slowly a loaded machine delivers.
+    seen, held_since = counts.get("frames seen"), time.monotonic()
+    while seen - seen0 < frames and time.monotonic() - held_since < 3.5:
         time.sleep(0.2)
+        if counts.get("frames seen") != seen:
+            seen, held_since = counts.get("frames seen"), time.monotonic()
     values = wait_until(counts.accounted, 30, f"{counts.name} done with the {what} frames")
     seen = int(values["frames seen"]) - seen0
     processed = int(values["frames processed"]) - processed0
