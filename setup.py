@@ -78,7 +78,7 @@ def precompile_kernels(tree: Path) -> None:
         _say(f"compiling the kernels failed after {time.monotonic() - start:.0f} s; they will "
              f"compile on first use:\n{run.stdout}{run.stderr[-4000:]}", problem=True)
         return
-    _say(run.stdout.strip())
+    print(run.stdout.strip(), flush=True)  # the module's own lines name the package
 
 
 class BuildPyAndKernels(build_py):
