@@ -1,10 +1,17 @@
 """The calibrator node under load: the real node over real DDS, fed at a camera's rate.
 
-    python -m bench.node_load                      # the three runs of docs/benchmarks.md
+    python -m bench.node_load                      # the runs of docs/benchmarks.md
     python -m bench.node_load --quick              # one short 640 x 480 run
-    python -m bench.node_load --width 1920 --height 1080 --rate 30 --seconds 60
+    python -m bench.node_load --width 1920 --height 1080 --rate 30 --seconds 60 \
+        --encoding rgb8 --reliable
     python -m bench.node_load --dds-only ...       # the same stream, no node: DDS alone
-    python -m bench.node_load --fastdds-profile bench/fastdds_large_shm.xml   # 64 MB SHM
+    python -m bench.node_load --alone ...          # the same stream, nobody subscribed
+    python -m bench.node_load --fastdds-profile artcal_ros/ros/fastdds_large_shm.xml  # all
+
+Without ``--fastdds-profile`` the publisher (the camera driver's stand-in) and this process
+use Fast DDS's defaults, and the node its own 64 MB shared-memory segment, as a user's node
+does (:mod:`artcal_ros.ros.transport`). Each full run is followed by the same stream with no
+subscriber at all, so the publisher's rate with and without the node is compared.
 
 One run: a few views are rendered once with :mod:`artcal_ros.synth` (a hand-held sweep of
 :func:`~artcal_ros.synth.smooth_poses`, played back and forth), the node is started as
@@ -39,7 +46,7 @@ import tempfile
 import threading
 import time
 from collections.abc import Callable, Iterator, Sequence
-from dataclasses import asdict, dataclass, field
+from dataclasses import asdict, dataclass, field, replace
 from pathlib import Path
 from typing import Any
 
@@ -49,8 +56,10 @@ from artcal_ros.ros.processes import NodeProcess, private_domain_env
 
 # The node's default overlay.max_width (artcal_ros/core/params.py): the overlay's width cap.
 OVERLAY_MAX_WIDTH = 960
-# (width, height, rate Hz, seconds) of the full set in docs/benchmarks.md
-FULL_RUNS = ((1920, 1080, 30.0, 60.0), (3840, 2160, 15.0, 30.0), (640, 480, 10.0, 20.0))
+# (width, height, rate Hz, seconds, encoding, reliable publisher) of the full set in
+# docs/benchmarks.md: what colour and 1080p cameras send.
+FULL_RUNS = ((640, 480, 30.0, 60.0, "bgr8", True), (1920, 1080, 30.0, 60.0, "rgb8", True),
+             (1920, 1080, 30.0, 60.0, "mono8", False), (3840, 2160, 15.0, 30.0, "bgr8", True))
 QUICK_RUN = (640, 480, 10.0, 8.0)
 WINDOW_S = 10.0  # "first / last 10 s" of the stream, and the memory warm-up time
 
@@ -66,11 +75,12 @@ class LoadSpec:
         encoding: the frames' ROS encoding (mono8, mono16, bgr8, rgb8).
         views: distinct rendered views, cycled back and forth (16: enough for the node to
             keep the 10 views ``~/calibrate`` needs, if it processes enough frames).
-        reliable: publish RELIABLE (else BEST_EFFORT; the node subscribes best effort
-            either way, so the link is best effort: this only changes the writer).
+        reliable: publish RELIABLE (else BEST_EFFORT; the node's image_qos auto follows).
         depth: the publisher's history depth (KEEP_LAST; 5 as ROS's sensor-data profile).
         node: run the calibrator (False: DDS alone, this process subscribes to the frames
             with the node's image QoS instead).
+        alone: with ``node`` False, nobody subscribes to the frames (the publisher's own
+            rate, for comparison).
         baseline: time the detector on the frames in this process first.
         seed: the poses' and photometry's seed.
         node_name: the node's name (its topics are ``/<node_name>/overlay`` ...); the frames
@@ -86,6 +96,7 @@ class LoadSpec:
     reliable: bool = False
     depth: int = 5
     node: bool = True
+    alone: bool = False
     baseline: bool = True
     seed: int = 11
     node_name: str = "calibrator"
@@ -334,7 +345,7 @@ class Listener:
         from diagnostic_msgs.msg import DiagnosticArray
         from rclpy.context import Context
         from rclpy.executors import SingleThreadedExecutor
-        from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
+        from rclpy.qos import HistoryPolicy, QoSProfile, ReliabilityPolicy
         from sensor_msgs.msg import Image
 
         self.context = Context()
@@ -359,14 +370,13 @@ class Listener:
                                                            self._on_best_effort, best_effort))
             self.subs.append(self.node.create_subscription(DiagnosticArray, "/diagnostics",
                                                            self._on_diagnostics, 10))
-        else:
-            # The node's image QoS (artcal_ros/ros/calibrator.py IMAGE_QOS), to see what DDS
+        elif not spec.alone:
+            # The QoS the node's image_qos auto chooses for this publisher, to see what DDS
             # alone delivers to such a subscription.
-            image_qos = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                                   reliability=ReliabilityPolicy.BEST_EFFORT,
-                                   durability=DurabilityPolicy.VOLATILE)
-            self.subs.append(self.node.create_subscription(Image, spec.image_topic,
-                                                           self._on_overlay, image_qos))
+            from artcal_ros.ros.image_subscription import image_qos
+
+            self.subs.append(self.node.create_subscription(
+                Image, spec.image_topic, self._on_overlay, image_qos(spec.reliable)))
         self._thread = threading.Thread(target=self._spin, name="listener", daemon=True)
         self._thread.start()
 
@@ -554,7 +564,8 @@ def _measure(spec: LoadSpec, work_dir: Path, result: LoadResult, node: NodeProce
                  node_alive)
     job = {"frames": str(work_dir / "frames.npy"), "topic": spec.image_topic,
            "encoding": spec.encoding, "rate_hz": spec.rate_hz, "seconds": spec.seconds,
-           "reliable": spec.reliable, "depth": spec.depth, "subscribers": 1,
+           "reliable": spec.reliable, "depth": spec.depth,
+           "subscribers": 0 if spec.alone else 1,
            "discovery_timeout": discovery_timeout, "result": str(work_dir / "sent.json")}
     (work_dir / "publisher.json").write_text(json.dumps(job))
     with contextlib.suppress(FileNotFoundError):
@@ -640,10 +651,11 @@ def _f(value: float | None, fmt: str = ".2f", suffix: str = "") -> str:
 
 def frames_table(results: Sequence[LoadResult]) -> str:
     """Markdown: frames sent, seen, processed, dropped, broken, lost, overlays."""
-    lines = ["| frames | transport | rate Hz (sent) | s | sent | seen | processed "
-             "| dropped (busy) | broken | lost before the node | measured precisely | views "
+    lines = ["| frames | publisher | node's image qos | transport | rate Hz (sent) | s | sent "
+             "| seen | processed | dropped (busy) | broken | lost before the node "
+             "| missed (publisher sequence) | measured precisely | views "
              "| overlays reliable | overlays best effort |",
-             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
+             "|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         s = r.spec
         seen = r.count("frames seen")
@@ -651,10 +663,13 @@ def frames_table(results: Sequence[LoadResult]) -> str:
         achieved = r.sent / r.stream_s if r.stream_s else None
         lines.append(
             f"| {s.width}x{s.height} {s.encoding} ({r.frame_bytes / 1e6:.1f} MB) "
+            f"| {'reliable' if s.reliable else 'best effort'} "
+            f"| {r.diagnostics.get('image qos', '-')} "
             f"| {r.transport} | {s.rate_hz:g} ({_f(achieved, '.1f')}) | {s.seconds:g} | {r.sent} "
             f"| {_f(seen, 'd')} | {_f(r.count('frames processed'), 'd')} "
             f"| {_f(r.count('frames dropped (busy)'), 'd')} | {_f(r.count('frames broken'), 'd')} "
-            f"| {_f(lost, 'd')} | {_f(r.count('frames measured'), 'd')} "
+            f"| {_f(lost, 'd')} | {_f(r.count('frames missed (publisher sequence)'), 'd')} "
+            f"| {_f(r.count('frames measured'), 'd')} "
             f"| {_f(r.count('views'), 'd')} | {r.overlays_reliable} | {r.overlays_best_effort} |")
     return "\n".join(lines)
 
@@ -718,6 +733,24 @@ def dds_table(results: Sequence[LoadResult]) -> str:
     return "\n".join(lines)
 
 
+def publisher_table(pairs: Sequence[tuple[LoadResult, LoadResult]]) -> str:
+    """Markdown: the publisher's rate and publish() time with the node, and with nobody."""
+    lines = ["| frames | publisher | rate Hz with the node / alone | change "
+             "| publish() median ms with the node / alone | late ticks with / alone |",
+             "|---|---|---|---|---|---|"]
+    for with_node, alone in pairs:
+        s = with_node.spec
+        a = with_node.sent / with_node.stream_s if with_node.stream_s else None
+        b = alone.sent / alone.stream_s if alone.stream_s else None
+        change = None if a is None or not b else 100.0 * (a - b) / b
+        lines.append(f"| {s.width}x{s.height} {s.encoding} @ {s.rate_hz:g} Hz "
+                     f"| {'reliable' if s.reliable else 'best effort'} "
+                     f"| {_f(a, '.2f')} / {_f(b, '.2f')} | {_f(change, '+.1f', ' %')} "
+                     f"| {_f(with_node.publish_ms)} / {_f(alone.publish_ms)} "
+                     f"| {with_node.late_ticks} / {alone.late_ticks} |")
+    return "\n".join(lines)
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.node_load",
                                      description=__doc__.split("\n\n")[0],
@@ -726,15 +759,19 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--height", type=int, help="frame height, pixels")
     parser.add_argument("--rate", type=float, help="frames per second")
     parser.add_argument("--seconds", type=float, help="stream length, seconds")
-    parser.add_argument("--encoding", default="mono8", help="mono8 | mono16 | bgr8 | rgb8")
+    parser.add_argument("--encoding", help="mono8 | mono16 | bgr8 | rgb8 (default mono8; the "
+                        "full set: each run's own)")
     parser.add_argument("--views", type=int, default=16, help="distinct rendered views")
     parser.add_argument("--fastdds-profile", type=Path,
                         help="a Fast DDS XML profile for every process of the run (e.g. "
-                        "bench/fastdds_large_shm.xml); default: Fast DDS's built-in transports")
+                        "artcal_ros/ros/fastdds_large_shm.xml); default: Fast DDS's built-in "
+                        "transports, the node its own large segment")
     parser.add_argument("--reliable", action="store_true", help="publish RELIABLE")
     parser.add_argument("--depth", type=int, default=5, help="publisher history depth")
     parser.add_argument("--dds-only", action="store_true",
                         help="no node: this process subscribes to the frames itself")
+    parser.add_argument("--alone", action="store_true",
+                        help="no node and no subscriber: the publisher's own rate")
     parser.add_argument("--no-baseline", action="store_true",
                         help="skip timing the detector in this process")
     parser.add_argument("--quick", action="store_true", help="one short 640x480 run")
@@ -746,11 +783,15 @@ def main(argv: list[str] | None = None) -> int:
         return publisher_main(args.publisher)
 
     given = (args.width, args.height, args.rate, args.seconds)
-    if any(v is not None for v in given):
-        base = QUICK_RUN
-        runs = [tuple(b if v is None else v for v, b in zip(given, base, strict=True))]
+    full = not args.quick and all(v is None for v in given)
+    runs: list[tuple[Any, ...]]
+    if full:
+        runs = [r if args.encoding is None else (*r[:4], args.encoding, args.reliable)
+                for r in FULL_RUNS]
     else:
-        runs = [QUICK_RUN] if args.quick else list(FULL_RUNS)
+        base = QUICK_RUN
+        runs = [(*(b if v is None else v for v, b in zip(given, base, strict=True)),
+                 args.encoding or "mono8", args.reliable)]
     # Before any rclpy context exists here: the node and the publisher inherit it.
     if "ROS_DOMAIN_ID" not in os.environ:
         os.environ.update(private_domain_env())
@@ -766,17 +807,24 @@ def main(argv: list[str] | None = None) -> int:
         home = root / "home"
         home.mkdir(parents=True, exist_ok=True)
         os.environ["HOME"] = str(home)
-        for w, h, rate, seconds in runs:
-            spec = LoadSpec(int(w), int(h), float(rate), float(seconds), args.encoding,
-                            views=args.views, reliable=args.reliable, depth=args.depth,
-                            node=not args.dds_only,
-                            baseline=not (args.no_baseline or args.dds_only))
-            print(f"{w}x{h} {args.encoding} at {rate:g} Hz for {seconds:g} s "
+        pairs = []
+        for w, h, rate, seconds, encoding, reliable in runs:
+            spec = LoadSpec(int(w), int(h), float(rate), float(seconds), encoding,
+                            views=args.views, reliable=reliable, depth=args.depth,
+                            node=not (args.dds_only or args.alone), alone=args.alone,
+                            baseline=not (args.no_baseline or args.dds_only or args.alone))
+            print(f"{w}x{h} {encoding} at {rate:g} Hz for {seconds:g} s, "
+                  f"{'reliable' if reliable else 'best effort'} publisher "
                   f"(load {os.getloadavg()[0]:.1f}, domain {os.environ['ROS_DOMAIN_ID']})",
                   flush=True)
-            results.append(run_load(spec, root / f"{w}x{h}_{rate:g}hz"))
+            name = f"{w}x{h}_{encoding}_{rate:g}hz"
+            results.append(run_load(spec, root / name))
+            if full and spec.node:
+                print("  the same stream with nobody subscribed", flush=True)
+                alone = replace(spec, node=False, alone=True, baseline=False)
+                pairs.append((results[-1], run_load(alone, root / f"{name}_alone")))
     print()
-    if args.dds_only:
+    if args.dds_only or args.alone:
         print(dds_table(results))
     else:
         print(frames_table(results))
@@ -784,6 +832,9 @@ def main(argv: list[str] | None = None) -> int:
         print(timing_table(results))
         print()
         print(overlay_note(results))
+    if pairs:
+        print()
+        print(publisher_table(pairs))
     if args.json:
         args.json.write_text(json.dumps([asdict(r) for r in results], indent=1))
     failed = [r for r in results if r.error or r.node_killed]

@@ -1,7 +1,7 @@
 """The calibrator node: collect views from a live image stream, solve on request.
 
 Interface (names relative, remappable):
-  subscribes  image                (sensor_msgs/Image; keep last 1, reliability as image_qos:
+  subscribes  image                (sensor_msgs/Image; keep last 5, reliability as image_qos:
                                     by default the publishers', see image_subscription.py)
               image/compressed     (sensor_msgs/CompressedImage, with image_transport: compressed)
   publishes   ~/overlay            (sensor_msgs/Image bgr8: markers, coverage, what is missing)
@@ -130,13 +130,14 @@ class CalibratorNode(Node):
             self, CompressedImage if compressed else Image,
             self.resolve_topic_name("image") + ("/compressed" if compressed else ""),
             self._on_image, mode=str(self.params["image_qos"]), callback_group=images,
-            on_change=self._on_qos_change)
+            on_change=self._on_qos_change, on_incompatible=self._on_qos_incompatible)
         self.create_service(Trigger, "~/calibrate", self._on_calibrate, callback_group=services)
         self.create_service(Trigger, "~/reset", self._on_reset, callback_group=services)
         self.set_info_client: Any = self.create_client(
             SetCameraInfo, "set_camera_info", callback_group=services)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=timers)
-        # Publishers come and go (a driver restarts, a second one starts): choose again.
+        # Publishers come and go (a driver restarts, a second one starts): the subscription's
+        # events choose again at once; this check catches what an event does not report.
         self.create_timer(0.5, self._choose_image_qos, callback_group=timers)
 
         self.worker: LatestWorker[Any] = LatestWorker(self._process, self._on_worker_error,
@@ -158,6 +159,9 @@ class CalibratorNode(Node):
 
     def _on_qos_change(self, choice: QosChoice) -> None:
         self.get_logger().info(f"image qos: {choice.text()}")
+
+    def _on_qos_incompatible(self, text: str) -> None:
+        self.get_logger().warning(text, throttle_duration_sec=10.0)
 
     def _process(self, msg: Image | CompressedImage) -> None:
         from artcal_ros.core.compressed import compressed_to_numpy

@@ -7,13 +7,15 @@ transports is a small share of any frame over half a megabyte. So with ``image_q
 the subscription asks for what the publishers offer, the way ``ros2 topic echo`` and
 rosbag2 choose: reliable when every publisher of the topic is reliable, best effort as soon
 as one is not (a reliable reader does not match a best-effort writer), and chosen again
-whenever the set of publishers changes. The history is keep-last 1 either way: a
-keep-last reliable reader acknowledges what it overwrote, so it never holds the camera
-driver back.
+whenever the set of publishers changes: at once when a publisher matches or offers an
+incompatible QoS (DDS events), and on a periodic check besides. With no publisher the
+subscription is left as it is, so a driver that restarts is met as before. The history is
+keep-last either way (:data:`IMAGE_DEPTH`): a keep-last reliable reader acknowledges what it
+overwrote, so it never holds the camera driver back.
 
 Frames lost on the way are counted from the publication sequence number each message
 carries (per publisher): a jump of n + 1 is n frames that never arrived, or that were
-replaced in the one-slot queue before the callback took them.
+replaced in the subscription's queue before the callback took them.
 """
 
 from __future__ import annotations
@@ -24,16 +26,22 @@ from dataclasses import dataclass
 from typing import Any
 
 from rclpy.callback_groups import CallbackGroup
+from rclpy.event_handler import SubscriptionEventCallbacks
 from rclpy.node import Node
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.subscription import MessageInfo, Subscription
 
 MODES = ("auto", "reliable", "best_effort")
+# Frames DDS holds for the image callback: the executor thread waits for the interpreter
+# while detection and drawing run, and with one slot a frame arriving meanwhile replaces the
+# one before it. Five (the depth of ROS's sensor-data profile) carry it over such a wait;
+# the detection worker still takes only the newest and counts the rest as dropped (busy).
+IMAGE_DEPTH = 5
 
 
 def image_qos(reliable: bool) -> QoSProfile:
-    """Keep-last 1, volatile, with the given reliability."""
-    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
+    """Keep-last :data:`IMAGE_DEPTH`, volatile, with the given reliability."""
+    return QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=IMAGE_DEPTH,
                       reliability=ReliabilityPolicy.RELIABLE if reliable
                       else ReliabilityPolicy.BEST_EFFORT,
                       durability=DurabilityPolicy.VOLATILE)
@@ -72,7 +80,7 @@ def choose_qos(mode: str, publishers_reliable: Sequence[bool]) -> QosChoice:
     if n == 0:
         # Best effort matches either kind of publisher, so the first frames are not missed
         # while the choice waits for the publisher to be discovered.
-        return QosChoice(False, "auto: no publisher yet")
+        return QosChoice(False, "auto: no publisher")
     unreliable = n - sum(publishers_reliable)
     if unreliable:
         return QosChoice(False, f"auto: {unreliable} of {n} publisher(s) best effort")
@@ -128,11 +136,14 @@ class ImageSubscription:
         mode: ``auto``, ``reliable`` or ``best_effort``.
         callback_group: the image callbacks' group.
         on_change: called with the new choice whenever the subscription is (re)made.
+        on_incompatible: called with a warning when a publisher cannot be matched (a forced
+            ``reliable`` against a best-effort publisher).
     """
 
     def __init__(self, node: Node, msg_type: type, topic: str, callback: Callable[[Any], None],
                  *, mode: str, callback_group: CallbackGroup | None = None,
-                 on_change: Callable[[QosChoice], None] | None = None) -> None:
+                 on_change: Callable[[QosChoice], None] | None = None,
+                 on_incompatible: Callable[[str], None] | None = None) -> None:
         if mode not in MODES:
             raise ValueError(f"image_qos must be one of {', '.join(MODES)}, not {mode!r}")
         self._node = node
@@ -142,7 +153,8 @@ class ImageSubscription:
         self._mode = mode
         self._group = callback_group
         self._on_change = on_change
-        self._lock = threading.Lock()
+        self._on_incompatible = on_incompatible
+        self._lock = threading.RLock()
         self._subscription: Subscription[Any] | None = None
         self.gaps = SequenceGaps()
         self.choice = choose_qos(mode, self._publishers())
@@ -153,11 +165,23 @@ class ImageSubscription:
         return [i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos]
 
     def _subscribe(self) -> None:
+        events = SubscriptionEventCallbacks(matched=self._matched,
+                                            incompatible_qos=self._incompatible)
         self._subscription = self._node.create_subscription(
             self._type, self.topic, self._on_message, image_qos(self.choice.reliable),
-            callback_group=self._group)
+            callback_group=self._group, event_callbacks=events)
         if self._on_change is not None:
             self._on_change(self.choice)
+
+    def _matched(self, _status: Any) -> None:
+        self.refresh()
+
+    def _incompatible(self, _status: Any) -> None:
+        if self.refresh() or self._on_incompatible is None:
+            return
+        self._on_incompatible(
+            f"a publisher of {self.topic} offers a QoS this {self.choice.text()} subscription "
+            "cannot match: its frames do not arrive (set image_qos to auto or best_effort)")
 
     def _on_message(self, msg: Any, info: MessageInfo) -> None:
         self.gaps.add(info)
@@ -171,8 +195,11 @@ class ImageSubscription:
         """
         if self._mode != "auto":
             return False
-        choice = choose_qos(self._mode, self._publishers())
         with self._lock:
+            publishers = self._publishers()
+            if not publishers:
+                return False  # keep what matched the last publisher until the next one
+            choice = choose_qos(self._mode, publishers)
             if choice.reliable == self.choice.reliable:
                 self.choice = choice  # the same reliability; the reason may read differently
                 return False
