@@ -33,9 +33,9 @@ interface package is installed can be played without decoding. The node's Fast D
 participant gets the package's large shared-memory segment unless the user chose a
 transport setup (:mod:`artcal_ros.ros.transport`), so large frames offered best effort
 arrive. At ``rate`` 0 a reliable topic keeps every message until its subscribers have
-acknowledged it; a best-effort one is sent as fast as it is read. Exit status: 0 at the end (also when ``until_topic`` ended
-a loop, or on Ctrl-C), 1 for a bag that cannot be read (one line naming the file and
-where), 2 for a bad parameter.
+acknowledged it; a best-effort one is sent as fast as it is read. Exit status: 0 at the
+end (also when ``until_topic`` ended a loop, or on Ctrl-C), 1 for a bag that cannot be
+read (one line naming the file and where), 2 for a bad parameter.
 """
 
 from __future__ import annotations
