@@ -72,6 +72,7 @@ from artcal_ros.ros.session import open_session
 from artcal_ros.ros.signals import StopSignals, shut_down, spin_until_stopped
 from artcal_ros.ros.transport import use_large_shared_memory
 
+SWITCH_INTERVAL_S = 0.001
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                          reliability=ReliabilityPolicy.RELIABLE,
                          durability=DurabilityPolicy.TRANSIENT_LOCAL)
@@ -365,6 +366,10 @@ def main(args: list[str] | None = None) -> int:
     # ARTCAL_THREADS to give it more.
     os.environ.setdefault("ARTCAL_THREADS", "1")
     transport = use_large_shared_memory()  # before rclpy creates the participant
+    # The fast tier makes many short OpenCV calls, each of which gives up the interpreter
+    # lock and must take it back; with Python's default 5 ms switch interval each retake
+    # can wait that long behind the executor's and precise detection's Python code.
+    sys.setswitchinterval(SWITCH_INTERVAL_S)
     stop = StopSignals.install()
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     try:
