@@ -112,7 +112,9 @@ setup(
     data_files=[
         ("share/ament_index/resource_index/packages", [f"resource/{PACKAGE}"]),
         (f"share/{PACKAGE}", ["package.xml"]),
-        (f"share/{PACKAGE}/config", glob("config/*.yaml")),
+        # the Fast DDS profile the nodes apply to themselves, for a camera driver's use too
+        (f"share/{PACKAGE}/config",
+         [*glob("config/*.yaml"), f"{PACKAGE}/ros/fastdds_large_shm.xml"]),
         (f"share/{PACKAGE}/config/boards", glob("config/boards/*.yaml")),
         (f"share/{PACKAGE}/launch", glob("launch/*.launch.py")),
         # the sample recording and its truth: what the installed demo replays

@@ -294,7 +294,9 @@ def main(argv: list[str] | None = None) -> int:
     if "ROS_DOMAIN_ID" not in os.environ:
         os.environ.update(private_domain_env())
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
-    if not args.default_transport:
+    if args.default_transport:
+        os.environ["ARTCAL_FASTDDS_PROFILE"] = "0"  # the node's own large segment too
+    else:
         os.environ["FASTDDS_DEFAULT_PROFILES_FILE"] = str(LARGE_SHM)
     spec = FloodSpec(args.width, args.height, args.rate, args.flood_seconds, args.calm_rate,
                      args.calm_seconds, args.call_every)

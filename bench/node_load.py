@@ -766,6 +766,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="a Fast DDS XML profile for every process of the run (e.g. "
                         "artcal_ros/ros/fastdds_large_shm.xml); default: Fast DDS's built-in "
                         "transports, the node its own large segment")
+    parser.add_argument("--node-default-transport", action="store_true",
+                        help="the node without its own large segment (Fast DDS's defaults)")
     parser.add_argument("--reliable", action="store_true", help="publish RELIABLE")
     parser.add_argument("--depth", type=int, default=5, help="publisher history depth")
     parser.add_argument("--dds-only", action="store_true",
@@ -798,6 +800,8 @@ def main(argv: list[str] | None = None) -> int:
     os.environ["ROS_AUTOMATIC_DISCOVERY_RANGE"] = "LOCALHOST"
     if args.fastdds_profile is not None:
         os.environ["FASTDDS_DEFAULT_PROFILES_FILE"] = str(args.fastdds_profile.resolve())
+    if args.node_default_transport:
+        os.environ["ARTCAL_FASTDDS_PROFILE"] = "0"
     results = []
     with contextlib.ExitStack() as stack:
         root = args.keep or Path(stack.enter_context(tempfile.TemporaryDirectory(

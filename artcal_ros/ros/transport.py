@@ -14,13 +14,15 @@ the user has chosen a transport setup of their own:
 - ``ARTCAL_FASTDDS_PROFILE`` is ``0`` (off on request).
 
 It is skipped too when ``/dev/shm`` has less room than two segments. Nothing here imports
-rclpy: call it before ``rclpy.init``.
+rclpy: call it before ``rclpy.init``. ``python -m artcal_ros.ros.transport`` prints the
+profile's path, for a camera driver's ``FASTDDS_DEFAULT_PROFILES_FILE``.
 """
 
 from __future__ import annotations
 
 import os
 import shutil
+import sys
 from collections.abc import MutableMapping
 from pathlib import Path
 
@@ -76,3 +78,8 @@ def use_large_shared_memory(environ: MutableMapping[str, str] | None = None, *,
                 "large segment needs")
     env["FASTDDS_DEFAULT_PROFILES_FILE"] = str(PROFILE)
     return f"{SEGMENT_BYTES // 2**20} MB shared memory ({PROFILE.name})"
+
+
+if __name__ == "__main__":
+    print(PROFILE)
+    sys.exit(0 if PROFILE.is_file() else 1)

@@ -131,6 +131,9 @@ def test_every_subpackage_is_installed(install: Path) -> None:
 def test_config_boards_and_sample_bag_are_installed_in_share(install: Path) -> None:
     share = install / "share" / "artcal_ros"
     assert (share / "config" / "calibrator.yaml").is_file()
+    # the nodes' Fast DDS profile, for a camera driver too, and the copy the nodes read
+    assert (share / "config" / "fastdds_large_shm.xml").is_file()
+    assert (_site_packages(install) / "artcal_ros" / "ros" / "fastdds_large_shm.xml").is_file()
     boards = sorted(p.name for p in (ROOT / "config" / "boards").glob("*.yaml"))
     assert boards, "config/boards has no board files"
     assert sorted(p.name for p in (share / "config" / "boards").glob("*.yaml")) == boards
