@@ -37,7 +37,7 @@ from artcal_ros.cli.common import (
     params_from_args,
 )
 from artcal_ros.cli.progress import Progress
-from artcal_ros.cli.skipped import SkippedFrames, read_image_file
+from artcal_ros.cli.skipped import SkippedFrames, expand_image_paths, read_image_file
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate import CalibrationResult
 from artcal_ros.core.calibrate.board_check import check_board
@@ -228,7 +228,7 @@ def run(args: argparse.Namespace) -> int:
     frames = (_bag_frames(args.bag, args.topic, args.max_frames, args.time_budget, args.quiet,
                           skipped, warn)
               if args.bag
-              else _file_frames(list(args.images), args.quiet, skipped))
+              else _file_frames(expand_image_paths(list(args.images)), args.quiet, skipped))
     start = time.monotonic()
     detector = Detector(board, DetectorConfig.from_params(params))
     try:

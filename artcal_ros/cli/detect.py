@@ -3,6 +3,8 @@
     artcal detect frames/*.png --params config/calibrator.yaml --json detections.json
     artcal detect img.png --set board.polarity=mixed --json out.json --overlay overlays/
     artcal detect left*.jpg --size 9x6 --square 0.025 --json chess.json   # a chessboard
+    artcal detect img*.jpg --pattern charuco --size 5x7 --square 0.04 \\
+        --charuco_marker_size 0.03 --aruco_dict 6x6_250 --json charuco.json
     artcal detect frames/*.png --target april_6x6.yaml --json tags.json     # a Kalibr target
 
 The JSON file is ``{"images": [{"file", "width", "height", "markers": [{"id",
@@ -31,8 +33,7 @@ from artcal_ros.cli.common import (
     board_overrides,
     params_from_args,
 )
-from artcal_ros.cli.progress import Progress
-from artcal_ros.cli.skipped import SkippedFrames, read_image_file
+from artcal_ros.cli.skipped import SkippedFrames, expand_image_paths, read_image_file
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector, DetectorConfig
 from artcal_ros.core.detections import Detections, tag_corner_points
@@ -49,7 +50,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="where to write the detections")
     parser.add_argument("--overlay", metavar="DIR", default=None,
                         help="also write <DIR>/<image name>.png with the detections drawn")
-    parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    parser.add_argument("--quiet", action="store_true",
+                        help="print only the totals, not a line per image")
 
 
 # the image reader of every verb (an image per file, errors naming the file)
@@ -88,8 +90,16 @@ def draw_detections(image: np.ndarray, dets: Detections) -> np.ndarray:
     return out
 
 
+def _found(board: Board, markers: int, points: int) -> str:
+    """``12 markers``, or ``54 points`` (and ``and 17 markers`` where the board has both)."""
+    if board.has_points or board.board_type == "aprilgrid":
+        return f"{points} points" + (f" and {markers} markers" if board.n_markers else "")
+    return f"{markers} markers"
+
+
 def run(args: argparse.Namespace) -> int:
-    """Detect in every image, write the JSON (and overlays); print a one-line summary.
+    """Detect in every image, write the JSON (and overlays); print a line per image (unless
+    ``--quiet``) and a one-line summary.
 
     Images that cannot be read are skipped, counted and named in the summary; only when
     none can be read is it an error (exit 2).
@@ -97,6 +107,7 @@ def run(args: argparse.Namespace) -> int:
     params = params_from_args(args, board_overrides(args))
     board = Board.from_params(params)
     detector = Detector(board, DetectorConfig.from_params(params))
+    paths = expand_image_paths(list(args.images))
     out_json = Path(args.json)
     if out_json.parent and not out_json.parent.is_dir():
         raise ParameterError(f"--json {args.json}: directory {out_json.parent} does not exist")
@@ -111,18 +122,21 @@ def run(args: argparse.Namespace) -> int:
     skipped = SkippedFrames()
     total = 0
     points = 0
-    for path in Progress(args.images, label="detect",
-                         enabled=not args.quiet and len(args.images) > 1):
+    for path in paths:
         try:
             image = read_image_file(path)
         except ImageFormatError as e:
             skipped.add(e)
+            if not args.quiet:
+                print(e)
             continue
         dets = detector.detect(image, source=path)
         listed = tag_corner_points(dets, board) if board.board_type == "aprilgrid" else dets
         records.append(listed.to_json(file=path, with_points=board.has_points))
         total += len(dets)
         points += len(listed.point_ids)
+        if not args.quiet:
+            print(f"{path}: {_found(board, len(dets), len(listed.point_ids))}")
         if overlay_dir is not None:
             name = overlay_dir / (Path(path).stem + ".png")
             if not cv2.imwrite(str(name), draw_detections(image, dets)):
@@ -135,9 +149,6 @@ def run(args: argparse.Namespace) -> int:
         os.replace(tmp, out_json)
     except OSError as e:
         raise ParameterError(f"--json {args.json}: cannot write it: {e.strerror or e}") from None
-    found = f"{total} markers"
-    if board.has_points or board.board_type == "aprilgrid":
-        found = f"{points} points" + (f" and {total} markers" if board.n_markers else "")
-    line = f"wrote {args.json}: {found} in {len(records)} image(s)"
+    line = f"wrote {args.json}: {_found(board, total, points)} in {len(records)} image(s)"
     print(line + (f"; {skipped.summary()}" if skipped.count else ""))
     return 0

@@ -4,17 +4,26 @@ One bad frame among hundreds should not cost a user the calibration: the verbs s
 count it, and name the causes once in their summary::
 
     skipped 2 broken frames: 1 unknown encoding 'yuv_weird'; 1 cannot read image b.png: ...
+
+The image files come from the command line as given; a wildcard the shell left alone
+(quoted, or matching nothing) is expanded here, and one that matches nothing is a usage
+error naming it, not a broken frame.
 """
 
 from __future__ import annotations
 
+import glob
 import os
 from collections import Counter
 from pathlib import Path
 
 import numpy as np
 
-from artcal_ros.core.errors import ArtcalError, ImageFormatError
+from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
+
+# File name endings OpenCV's imread decodes (lower case), for the hint on a folder.
+IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm", ".pnm",
+                  ".webp", ".jp2", ".exr", ".hdr")
 
 
 class SkippedFrames:
@@ -52,8 +61,8 @@ def read_image_file(path: str) -> np.ndarray:
     import cv2
 
     if os.path.isdir(path):
-        raise ImageFormatError(f"cannot read image {path}: it is a directory (give the image "
-                               f"files in it, e.g. {Path(path) / '*.png'})")
+        raise ImageFormatError(f"cannot read image {path}: it is a directory "
+                               f"({folder_hint(path)})")
     if not os.path.isfile(path):
         raise ImageFormatError(f"cannot read image {path}: no such file")
     try:
@@ -69,3 +78,38 @@ def read_image_file(path: str) -> np.ndarray:
         raise ImageFormatError(f"cannot use image {path}: {image.dtype} pixels of shape "
                                f"{image.shape}; save it as 8- or 16-bit grey or colour")
     return np.asarray(image)
+
+
+def folder_hint(folder: str) -> str:
+    """What to give instead of a folder: its images by their most common ending
+    (``give the image files in it, e.g. frames/*.jpg``), or that it holds none."""
+    try:
+        names = os.listdir(folder)
+    except OSError as e:
+        return f"and cannot be listed: {e.strerror or e}"
+    endings = Counter(Path(n).suffix for n in names
+                      if Path(n).suffix.lower() in IMAGE_SUFFIXES
+                      and os.path.isfile(os.path.join(folder, n)))
+    if not endings:
+        return "with no image files in it"
+    pattern = ", ".join(str(Path(folder) / f"*{end}") for end, _ in endings.most_common(2))
+    return f"give the image files in it, e.g. {pattern}"
+
+
+def expand_image_paths(paths: list[str]) -> list[str]:
+    """The image files named on the command line, with wildcards the shell left alone
+    (quoted, or matching nothing) expanded here, each pattern's matches sorted.
+
+    Raises:
+        ParameterError: a pattern matches no file (``no file matches frames/*.png``).
+    """
+    out: list[str] = []
+    for path in paths:
+        if os.path.exists(path) or not any(c in path for c in "*?["):
+            out.append(path)
+            continue
+        matches = sorted(glob.glob(os.path.expanduser(path)))
+        if not matches:
+            raise ParameterError(f"no file matches {path}")
+        out.extend(matches)
+    return out

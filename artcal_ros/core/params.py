@@ -68,6 +68,23 @@ def _dictionary(value: Any) -> str | None:
     return f"is not an OpenCV predefined dictionary; allowed: {', '.join(names)}"
 
 
+def length_complaint(value_m: float) -> str | None:
+    """Why a board length of ``value_m`` metres is implausible (a mistaken unit), or None.
+
+    Over 1 m is most likely millimetres or centimetres typed as metres; under 1 mm is
+    finer than a printer prints or a camera resolves at calibration distances.
+    """
+    if value_m > 1.0:
+        hint = f"{value_m:g} mm is {value_m / 1000:g}"
+        if value_m < 100:
+            hint += f", {value_m:g} cm is {value_m / 100:g}"
+        return f"{value_m:g} m? lengths are in metres ({hint})"
+    if 0 < value_m < 0.001:
+        return (f"{value_m * 1000:g} mm is too small to print or detect; lengths are in "
+                "metres (25 mm is 0.025)")
+    return None
+
+
 # How each range check reads after "expected an integer" or "expected a number".
 _RANGE_WORDS: dict[Any, str] = {_positive: " > 0", _non_negative: " >= 0"}
 
@@ -171,6 +188,23 @@ def _k_coefficients_fit_model(values: Mapping[str, ParamValue]) -> str | None:
                                     int(values["calibrate.k_coefficients"]))
 
 
+# The lengths each board type prints (the others are unused and not checked).
+_LENGTHS_USED = {
+    "marker_grid": ("board.marker_length",), "aprilgrid": ("board.marker_length",),
+    "charuco": ("board.square_length", "board.marker_length"),
+    "chessboard": ("board.square_length",), "circles": ("board.square_length",),
+    "acircles": ("board.square_length",),
+}
+
+
+def _lengths_in_metres(values: Mapping[str, ParamValue]) -> str | None:
+    for name in _LENGTHS_USED.get(str(values["board.type"]), ()):
+        complaint = length_complaint(float(values[name]))
+        if complaint:
+            return f"parameter '{name}': {complaint}"
+    return None
+
+
 def _board_fits(values: Mapping[str, ParamValue]) -> str | None:
     kind = values["board.type"]
     if kind == "marker_grid":
@@ -199,6 +233,7 @@ def _board_fits(values: Mapping[str, ParamValue]) -> str | None:
 # parameter and its allowed values) or None.
 CROSS_CHECKS: tuple[Callable[[Mapping[str, ParamValue]], str | None], ...] = (
     _k_coefficients_fit_model,
+    _lengths_in_metres,
     _board_fits,
 )
 

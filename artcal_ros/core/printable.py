@@ -35,19 +35,18 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.errors import ParameterError
+from artcal_ros.core.paper import (
+    FOOTER_MM,
+    PAGE_BORDER_MM,
+    SCALE_BAR_MM,
+    fit_paper,
+    pattern_mm,
+)
 
 MM_PER_INCH = 25.4
 PT_PER_MM = 72.0 / MM_PER_INCH
-PAGE_BORDER_MM = 10.0    # white border: most printers cannot print to the paper's edge
-FOOTER_MM = 20.0         # room for two text lines and the scale bar
-SCALE_BAR_MM = 100.0
 SCALE_BAR_THICK_MM = 1.5
 FORMATS = (".pdf", ".svg", ".png")
-# (width, height) in mm, portrait
-PAPERS: dict[str, tuple[float, float]] = {
-    "A0": (841.0, 1189.0), "A1": (594.0, 841.0), "A2": (420.0, 594.0),
-    "A3": (297.0, 420.0), "A4": (210.0, 297.0), "letter": (215.9, 279.4),
-}
 PRINT_NOTE = "Print at actual size (100 %, no fit-to-page). The bar must measure 100 mm."
 
 # Helvetica advance widths (1/1000 em) for fitting text to the page width.
@@ -88,6 +87,10 @@ class PageLayout:
         scale_bar_mm: (x0, y0, x1, y1) of the 100 mm scale bar's main stroke.
         description: :meth:`Board.describe` of the board.
         discs_mm: (D, 3) float64 black discs (centre x, centre y, radius) of a circle grid.
+        turned: the board is turned a quarter turn clockwise on the page (board x runs down
+            the page, board y from right to left), to fit its paper.
+        margin_mm: the quiet margin printed around the pattern (narrower than
+            :attr:`Board.margin_m` where that was needed to fit the paper).
     """
 
     page_size_mm: tuple[float, float]
@@ -97,6 +100,8 @@ class PageLayout:
     scale_bar_mm: tuple[float, float, float, float]
     description: str
     discs_mm: np.ndarray = field(default_factory=lambda: np.zeros((0, 3)))
+    turned: bool = False
+    margin_mm: float = 0.0
 
 
 def board_black_rects_m(board: Board) -> np.ndarray:
@@ -142,37 +147,40 @@ def layout_page(board: Board, *, paper: str | None = None) -> PageLayout:
 
     Args:
         board: the board to print.
-        paper: None to size the page to its content, or a key of :data:`PAPERS`
-            (portrait or landscape, whichever fits; content centred).
+        paper: None to size the page to its content, or a paper name
+            (:data:`artcal_ros.core.paper.PAPERS`): portrait or landscape, the board turned
+            a quarter turn and its quiet margin narrowed if that is what fits
+            (:func:`artcal_ros.core.paper.fit_paper`); content centred.
 
     Raises:
         ParameterError: the board does not fit on ``paper``.
     """
-    margin_mm = board.margin_m * 1000.0
-    area_w = board.size_m[0] * 1000.0 + 2 * margin_mm
-    area_h = board.size_m[1] * 1000.0 + 2 * margin_mm
+    turned, margin_mm = False, board.margin_m * 1000.0
+    if paper is not None:
+        page_size, turned, margin_mm = fit_paper(board, paper)
+    pattern_w, pattern_h = pattern_mm(board, turned)
+    area_w, area_h = pattern_w + 2 * margin_mm, pattern_h + 2 * margin_mm
     content_w = max(area_w, SCALE_BAR_MM + 30.0)
     content_h = area_h + FOOTER_MM
-    page_w, page_h = content_w + 2 * PAGE_BORDER_MM, content_h + 2 * PAGE_BORDER_MM
-    if paper is not None:
-        if paper not in PAPERS:
-            raise ParameterError(f"--paper {paper!r}: use one of fit, {', '.join(PAPERS)}")
-        pw, ph = PAPERS[paper]
-        fits = [(w, h) for w, h in ((pw, ph), (ph, pw)) if page_w <= w and page_h <= h]
-        length = ("marker_length" if board.chess is None and board.circles is None
-                  else "square_length")
-        if not fits:
-            raise ParameterError(
-                f"--paper {paper}: the board needs {page_w:.0f} x {page_h:.0f} mm with its "
-                f"border and footer but {paper} is {pw:g} x {ph:g} mm; use a larger paper, "
-                f"--paper fit, or a smaller board.{length}")
-        page_w, page_h = fits[0]
+    if paper is None:
+        page_size = (content_w + 2 * PAGE_BORDER_MM, content_h + 2 * PAGE_BORDER_MM)
+    page_w, page_h = page_size
     left = 0.5 * (page_w - content_w)
     top = 0.5 * (page_h - content_h)
     area_x = left + 0.5 * (content_w - area_w)
-    x0, y0 = board.extent_m[:2]
-    origin = (area_x + margin_mm - 1000.0 * x0, top + margin_mm - 1000.0 * y0)
-    board_rects = board_black_rects_m(board) * 1000.0 + np.array([*origin, *origin])
+    x0, y0, x1, y1 = (1000.0 * v for v in board.extent_m)
+    # The board's black, cut to the margin printed (board frame, mm).
+    rects = board_black_rects_m(board) * 1000.0
+    rects = np.column_stack([np.maximum(rects[:, 0], x0 - margin_mm),
+                             np.maximum(rects[:, 1], y0 - margin_mm),
+                             np.minimum(rects[:, 2], x1 + margin_mm),
+                             np.minimum(rects[:, 3], y1 + margin_mm)])
+    rects = rects[(rects[:, 2] > rects[:, 0]) & (rects[:, 3] > rects[:, 1])]
+    if turned:   # board x runs down the page, board y from right to left
+        origin = (area_x + margin_mm + y1, top + margin_mm - x0)
+    else:
+        origin = (area_x + margin_mm - x0, top + margin_mm - y0)
+    board_rects = _board_rects_on_page(rects, origin, turned)
 
     # Footer: description, print note, then the scale bar with 10 mm ticks.
     foot_y = top + area_h
@@ -187,12 +195,30 @@ def layout_page(board: Board, *, paper: str | None = None) -> PageLayout:
         x = min(max(bar[0] + 10.0 * k - 0.5 * tick_w, bar[0]), bar[2] - tick_w)
         ticks.append((x, bar[3], x + tick_w, bar[3] + (2.5 if k in (0, 5, 10) else 1.2)))
     texts += (TextLine(bar[2] + 3.0, bar[3] + 1.0, 3.0, "100 mm"),)
-    rects = np.vstack([board_rects, np.array([bar, *ticks], dtype=np.float64)])
+    all_rects = np.vstack([board_rects, np.array([bar, *ticks], dtype=np.float64)])
     discs = np.zeros((0, 3))
     if board.circles is not None:
-        centres = board.object_points()[:, :2] * 1000.0 + np.array(origin)
+        centres = _board_points_on_page(board.object_points()[:, :2] * 1000.0, origin, turned)
         discs = np.column_stack([centres, np.full(len(centres), board.circles.radius * 1000)])
-    return PageLayout((page_w, page_h), origin, rects, texts, bar, board.describe(), discs)
+    return PageLayout((page_w, page_h), origin, all_rects, texts, bar, board.describe(), discs,
+                      turned=turned, margin_mm=margin_mm)
+
+
+def _board_points_on_page(points_mm: np.ndarray, origin: tuple[float, float],
+                          turned: bool) -> np.ndarray:
+    """(N, 2) board-frame points (mm) -> page positions (mm)."""
+    p = np.asarray(points_mm, dtype=np.float64)[:, :2]
+    if turned:
+        return np.column_stack([origin[0] - p[:, 1], origin[1] + p[:, 0]])
+    return p + np.array(origin)
+
+
+def _board_rects_on_page(rects_mm: np.ndarray, origin: tuple[float, float],
+                         turned: bool) -> np.ndarray:
+    """(K, 4) board-frame rectangles (x0, y0, x1, y1, mm) -> page rectangles (mm)."""
+    lo = _board_points_on_page(rects_mm[:, :2], origin, turned)
+    hi = _board_points_on_page(rects_mm[:, 2:], origin, turned)
+    return np.column_stack([np.minimum(lo, hi), np.maximum(lo, hi)]).reshape(-1, 4)
 
 
 def board_to_png_px(layout: PageLayout, points_m: np.ndarray, dpi: float) -> np.ndarray:
@@ -204,7 +230,8 @@ def board_to_png_px(layout: PageLayout, points_m: np.ndarray, dpi: float) -> np.
     Returns:
         (N, 2) float64, OpenCV pixel coordinates (centre of the top-left pixel = (0, 0)).
     """
-    p = np.asarray(points_m, dtype=np.float64)[:, :2] * 1000.0 + np.array(layout.board_origin_mm)
+    p = _board_points_on_page(np.asarray(points_m, dtype=np.float64)[:, :2] * 1000.0,
+                              layout.board_origin_mm, layout.turned)
     return p * (dpi / MM_PER_INCH) - 0.5
 
 

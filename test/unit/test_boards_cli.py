@@ -18,7 +18,7 @@ from artcal_ros.cli.main import main
 from artcal_ros.core.coverage import CoverageConfig, ViewCollector
 from artcal_ros.core.detect import Detector
 from artcal_ros.core.live import LiveDetection
-from artcal_ros.core.printable import board_to_png_px, write_printable
+from artcal_ros.core.printable import board_to_png_px, layout_page, write_printable
 from artcal_ros.synth import load_truth
 from artcal_ros.synth.camera import Camera
 from artcal_ros.synth.dataset import write_dataset
@@ -100,8 +100,8 @@ def test_camera_calibration_size_and_square_calibrate_a_chessboard(tmp_path: Pat
 
 
 def test_size_contradicting_board_type_is_refused(capsys: pytest.CaptureFixture[str]) -> None:
-    code = main(["calibrate", "x.png", "--size", "8x6", "--set", "board.type=charuco",
-                 "--output", "/tmp/never.yaml", "--quiet"])
+    code = main(["calibrate", "x.png", "--size", "8x6", "--square", "0.03", "--set",
+                 "board.type=charuco", "--output", "/tmp/never.yaml", "--quiet"])
     assert code == 2
     assert "contradicts" in capsys.readouterr().err
     assert main(["calibrate", "x.png", "--size", "8by6", "--quiet"]) == 2
@@ -151,3 +151,47 @@ def test_circle_grids_calibrate_through_the_cli(tmp_path: Path, kind: str) -> No
     assert abs(K[0, 2] - K_true[0, 2]) < 1.5
     summary = json.loads((report / "summary.json").read_text())
     assert summary["reprojection_rms_px"] < 0.1
+
+
+def test_a4_chessboard_is_turned_to_fit_and_the_command_says_so(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    """A 225 x 175 mm chessboard (8x6 inner corners of 25 mm) with its white margin fits A4
+    only with its long side along the paper's: it is turned, said so, and printed where
+    :func:`board_to_png_px` says."""
+    out, dpi = tmp_path / "chess.png", 100.0
+    assert main(["board", "--size", "8x6", "--square", "0.025", "--paper", "A4",
+                 "--out", str(out), "--dpi", f"{dpi:g}"]) == 0
+    said = capsys.readouterr().out
+    assert "A4 portrait" in said and "board turned a quarter turn" in said
+    assert "(225 x 175 mm)" in said
+    assert "mm of white around it" in said
+    img = cv2.imread(str(out), cv2.IMREAD_GRAYSCALE)
+    assert img.shape == (round(297 * dpi / 25.4), round(210 * dpi / 25.4))
+    board = Board(board_type="chessboard", cols=8, rows=6, square_length=0.025)
+    layout = layout_page(board, paper="A4")
+    assert layout.turned
+    want = board_to_png_px(layout, board.object_points(), dpi)
+    found = None
+    for size in ((8, 6), (6, 8)):
+        ok, corners = cv2.findChessboardCorners(img, size)
+        if ok:
+            found = cv2.cornerSubPix(img, corners, (5, 5), (-1, -1), (
+                cv2.TERM_CRITERIA_EPS + cv2.TERM_CRITERIA_MAX_ITER, 50, 0.001)).reshape(-1, 2)
+            break
+    assert found is not None and len(found) == len(want)
+    gap = np.linalg.norm(want[:, None, :] - found[None, :, :], axis=2).min(axis=1)
+    assert gap.max() < 0.5
+
+
+def test_a_wide_board_goes_landscape_and_a_fitting_one_stays_as_it_is(
+        tmp_path: Path, capsys: pytest.CaptureFixture[str]) -> None:
+    assert main(["board", "--size", "10x3", "--square", "0.02", "--paper", "A4",
+                 "--out", str(tmp_path / "wide.svg")]) == 0
+    said = capsys.readouterr().out
+    assert "A4 landscape, page 297.0 x 210.0 mm" in said and "turned" not in said
+    assert "narrowed" not in said
+    assert main(["board", "--size", "4x3", "--square", "0.02", "--paper", "A4",
+                 "--out", str(tmp_path / "small.svg")]) == 0
+    said = capsys.readouterr().out
+    assert "A4 portrait, page 210.0 x 297.0 mm" in said and "turned" not in said
+    assert "(100 x 80 mm)" in said

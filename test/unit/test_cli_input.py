@@ -136,7 +136,7 @@ def test_nothing_usable_exits_2_with_the_reason(tmp_path: Path, what: str,
         args, says = [str(tmp_path / "nope.png")], "no such file"
     elif what == "empty directory":
         (tmp_path / "frames").mkdir()
-        args, says = [str(tmp_path / "frames")], "it is a directory (give the image files in it"
+        args, says = [str(tmp_path / "frames")], "it is a directory (with no image files in it)"
     else:
         bag = tmp_path / "weird"
         with BagWriter(bag) as w:
@@ -227,3 +227,60 @@ def test_an_empty_yaml_value_for_output_file_means_the_default(tmp_path: Path) -
     params = tmp_path / "p.yaml"
     params.write_text("/**:\n  ros__parameters:\n    output_file:\n")
     assert output_path(load_params(params)).name == "camera.yaml"
+
+
+# -- file names: wildcards, folders, a line per image ------------------------------------------
+
+
+@pytest.mark.parametrize("verb", ["calibrate", "detect"])
+def test_a_wildcard_matching_nothing_is_named_not_called_a_broken_frame(
+        tmp_path: Path, verb: str, capsys: pytest.CaptureFixture) -> None:
+    out = ["--output", str(tmp_path / "c.yaml")] if verb == "calibrate" else [
+        "--json", str(tmp_path / "d.json")]
+    code = main([verb, "/nonexistent/frames/*.png", *out, "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 2
+    assert "no file matches /nonexistent/frames/*.png" in err
+    assert "broken" not in err and "cannot read image" not in err
+    assert len(err.strip().splitlines()) == 1
+
+
+def test_a_quoted_wildcard_is_expanded_in_order(tmp_path: Path, good_pngs: list[str],
+                                                capsys: pytest.CaptureFixture) -> None:
+    folder = Path(good_pngs[0]).parent
+    out_json = tmp_path / "d.json"
+    assert main(["detect", str(folder / "view*.png"), "--params", str(PARAMS_FILE),
+                 "--json", str(out_json), "--quiet"]) == 0
+    files = [r["file"] for r in yaml.safe_load(out_json.read_text())["images"]]
+    assert files == sorted(good_pngs)
+
+
+def test_a_folder_hint_names_the_image_files_it_holds(tmp_path: Path,
+                                                     capsys: pytest.CaptureFixture) -> None:
+    folder = tmp_path / "frames"
+    folder.mkdir()
+    for k in range(3):
+        (folder / f"left{k}.jpg").write_bytes(b"")
+    (folder / "notes.txt").write_text("not an image")
+    code, _out, err = calibrate([str(folder), "--output", str(tmp_path / "c.yaml")], capsys)
+    assert code == 2
+    assert f"give the image files in it, e.g. {folder / '*.jpg'}" in err
+    assert "*.png" not in err and "*.txt" not in err
+
+
+def test_detect_prints_a_line_per_image_unless_quiet(tmp_path: Path, good_pngs: list[str],
+                                                    capsys: pytest.CaptureFixture) -> None:
+    missing = tmp_path / "missing.png"
+    args = ["detect", *good_pngs[:2], str(missing), "--params", str(PARAMS_FILE),
+            "--json", str(tmp_path / "d.json")]
+    assert main(args) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 4
+    for path, line in zip(good_pngs[:2], lines, strict=False):
+        assert line.startswith(f"{path}: ") and line.endswith(" markers")
+        assert int(line.split(": ")[1].split()[0]) > 0
+    assert lines[2] == f"cannot read image {missing}: no such file"
+    assert lines[3].startswith("wrote ") and "in 2 image(s)" in lines[3]
+    assert main([*args, "--quiet"]) == 0
+    lines = capsys.readouterr().out.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("wrote ")
