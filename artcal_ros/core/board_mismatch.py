@@ -114,9 +114,10 @@ class BoardMismatch:
         board = self.board
         own = board.dictionary_name
         prefix = (f"markers seen, none from the configured board (ids {board.first_id}.."
-                  f"{board.first_id + board.cols * board.rows - 1}, dictionary {own})")
+                  f"{int(board.ids[-1])}, dictionary {own})")
         ids = self._ids(grey, own)
         outside = [i for i in ids if not board.has_id(i)]
+        on_board = len(ids) - len(outside)
         if len(outside) >= MIN_MARKERS or (outside and len(outside) == len(ids) >= 2):
             return f"{prefix}: the camera sees {own} ids {_ids_text(outside)}; " \
                 "set board.first_id, board.cols and board.rows to the printed board"
@@ -127,7 +128,9 @@ class BoardMismatch:
             found = self._ids(grey, name)
             if len(found) > len(best_ids):
                 best, best_ids = name, found
-        if len(best_ids) < MIN_MARKERS:
+        # chance decodes of another dictionary in the board's own pattern are no finding when
+        # at least as many of the board's own markers are in view
+        if len(best_ids) < MIN_MARKERS or len(best_ids) <= on_board:
             return ""
         family = _family(best)
         if family is not None:  # the smallest dictionary of the family holding every id

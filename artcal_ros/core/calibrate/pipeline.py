@@ -46,13 +46,14 @@ from artcal_ros.core.calibrate.solve import (
 from artcal_ros.core.calibrate.views import (
     POINTS_MODES,
     GeometryCache,
-    check_views,
     coverage_cells,
+    feature_term,
     layout_outliers,
     lens_corrected_centers,
     select_views,
     view_points,
     view_problem,
+    views_problem,
 )
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import CalibrationError
@@ -193,6 +194,7 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
               k_coefficients: int = 0, fix_principal_point: bool = False,
               fix_aspect_ratio: bool = False, zero_tangent_dist: bool = False,
               k3: bool = False, cross_validation_folds: int = 5, weighted: bool = True,
+              accept_weak: bool = False,
               progress: Callable[[str], None] | None = None) -> CalibrationResult:
     """Calibrate a camera from the markers found in several images.
 
@@ -215,6 +217,9 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         weighted: weight each point by the detector's 1/sigma^2 where it gives sigmas
             (``corner_sigma_px``/``center_sigma_px``), re-scaled to the residuals (per
             view, and Huber's weight per point); views without them weigh alike.
+        accept_weak: solve a set the view checks refuse (too few views, one tilt) when a
+            solve is possible at all; the result's ``weak_reason`` says why it would have
+            been refused and its uncertainty how much that costs.
         progress: called with a short message at each stage.
 
     Returns:
@@ -222,7 +227,8 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
 
     Raises:
         CalibrationError: the views cannot support a solve (the message says what views
-            to add) or the solve did not give a camera that can be right.
+            to add; with ``accept_weak`` only when no view is usable or the solve fails) or
+            the solve did not give a camera that can be right.
         ParameterError: ``k_coefficients`` is out of range for the model.
     """
     start = time.monotonic()
@@ -252,7 +258,19 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
             dropped.append(DroppedView(i, det.source, problem))
     # Each view's rough geometry (guessed camera) once, for the checks and the selection.
     cache = GeometryCache()
-    check_views(usable, size, [(d.view_index, d.reason) for d in dropped], cache=cache)
+    weak: list[str] = []
+
+    def check_views(views: list[ViewPoints]) -> None:
+        problem = views_problem(views, size, [(d.view_index, d.reason) for d in dropped],
+                                board=board, cache=cache)
+        if problem is None:
+            return
+        if not accept_weak or not views:
+            raise CalibrationError(problem)
+        if not weak:
+            weak.append(problem)
+
+    check_views(usable)
     if len(usable) > max_views:
         say(f"selecting {max_views} of {len(usable)} views")
         keep = set(select_views(usable, size, max_views, cache=cache))
@@ -262,13 +280,19 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         usable = [v for k, v in enumerate(usable) if k in keep]
     outliers: list[np.ndarray] = []
     usable, points_dropped = _layout_check(usable, board, dropped, outliers)
-    check_views(usable, size, [(d.view_index, d.reason) for d in dropped], cache=cache)
+    check_views(usable)
 
     say(f"solving {model} from {len(usable)} views")
     views = usable
     weighted = weighted and any(
         v.sigma_px is not None and np.isfinite(v.sigma_px).any() for v in views)
-    sol, _ = solve(views, size, model, options=options, weighted=weighted)
+    try:
+        sol, _ = solve(views, size, model, options=options, weighted=weighted)
+    except CalibrationError as e:
+        if not weak:
+            raise
+        raise CalibrationError(f"{weak[0]}; a solve anyway (--accept-weak) failed too: "
+                               f"{e}") from None
     if points == "centers":
         # Re-measure the centres through the fitted lens, then solve again (twice: the
         # second pass moves them by far less than their noise).
@@ -283,7 +307,7 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         if len(kept) == len(views) and removed == 0:
             break
         points_dropped += removed
-        check_views(kept, size, [(d.view_index, d.reason) for d in dropped], cache=cache)
+        check_views(kept)
         previous, views = views, kept
         say(f"re-solving without outliers ({len(views)} views, {points_dropped} points dropped)")
         sol, _ = solve(views, size, model, options=options, initial=sol, weighted=weighted,
@@ -309,7 +333,8 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         say(f"{cross_validation_folds}-fold cross-validation")
         holdout = cross_validate(views, sol, folds=cross_validation_folds, weighted=weighted)
     coverage = float(np.mean(coverage_cells(views, size).any(axis=0)))
-    warnings = _warnings(sol, size, views, std_dev, effects, rms, holdout, coverage)
+    warnings = _warnings(sol, size, views, std_dev, effects, rms, holdout, coverage,
+                         feature_term(board))
     per_view = np.array([float(np.sqrt(np.mean(np.sum(r ** 2, axis=1)))) for r in res])
     return CalibrationResult(
         camera_matrix=sol.camera_matrix, dist_coeffs=_full_dist(sol), model=model,
@@ -325,7 +350,7 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         residuals_px=np.concatenate(res),
         point_view=np.concatenate([np.full(len(v), v.index) for v in views]),
         outliers_px=(np.concatenate(outliers) if outliers else np.zeros((0, 2))),
-        solve_time_s=time.monotonic() - start)
+        solve_time_s=time.monotonic() - start, weak_reason=weak[0] if weak else "")
 
 
 def _poses_of(views: Sequence[ViewPoints], solved: Sequence[ViewPoints],
@@ -385,21 +410,22 @@ def _sanity(sol: Solution, views: Sequence[ViewPoints], size: tuple[int, int],
 
 def _warnings(sol: Solution, size: tuple[int, int], views: Sequence[ViewPoints],
               std_dev: np.ndarray, effects: np.ndarray, rms: float, holdout: float,
-              coverage: float) -> list[str]:
-    """Say what the data cannot pin down, and what to add."""
+              coverage: float, term: str) -> list[str]:
+    """Say what the data cannot pin down, and what to add (``term``: what the board's
+    features are called, :func:`feature_term`)."""
     out = []
     for name, s, e in zip(sol.free, std_dev, effects, strict=True):
         if not np.isfinite(e) or e > PARAM_EFFECT_WARN_PX:
             shown = "fx = fy" if name == TIED_FOCAL else name
             out.append(f"{shown} is poorly determined (1-sigma {s:.3g}, moves the image by up to "
-                       f"{e:.2f} px); add views tilted more steeply and markers in the image "
-                       "corners")
+                       f"{e:.2f} px); add views tilted more steeply and with {term} in the "
+                       "image corners")
     # The node's readiness judges by the same grid and threshold (core.view_geometry): a
     # collection it calls ready does not get this warning.
     if coverage < MIN_COVERAGE:
         out.append(f"points cover only {100 * coverage:.0f}% of the image "
                    f"({COVERAGE_GRID[0]}x{COVERAGE_GRID[1]} grid); "
-                   "distortion outside them is extrapolated: add views with markers near the "
+                   f"distortion outside them is extrapolated: add views with {term} near the "
                    "edges and corners")
     if np.isfinite(holdout) and holdout > 1.5 * rms + 0.05:
         out.append(f"hold-out error {holdout:.3f} px is much larger than the fit's {rms:.3f} "

@@ -5,6 +5,8 @@
 - ``coverage.png``: where the points fall in the image, with the 8 x 6 coverage grid
   shaded by how many points each cell holds.
 - ``per_view_error.png``: the RMS reprojection error of each view used, as bars.
+
+A set that gave no calibration has only ``coverage.png``, of the points detected.
 """
 
 from __future__ import annotations
@@ -63,11 +65,22 @@ def residual_plot(result: CalibrationResult) -> np.ndarray:
 
 def coverage_plot(result: CalibrationResult) -> np.ndarray:
     """BGR image of the points over the image and the coverage grid."""
-    canvas, scale, top = _canvas(result.image_size)
-    w, h = result.image_size
     gx, gy = COVERAGE_GRID
-    cx = np.clip((result.points_px[:, 0] / w * gx).astype(int), 0, gx - 1)
-    cy = np.clip((result.points_px[:, 1] / h * gy).astype(int), 0, gy - 1)
+    text = (f"{len(result.points_px)} points from {len(result.views_used)} views; "
+            f"{100 * result.coverage:.0f}% of the {gx}x{gy} grid covered (pink: empty)")
+    return points_plot(result.image_size, result.points_px, text)
+
+
+def points_plot(image_size: tuple[int, int], points_px: np.ndarray, text: str) -> np.ndarray:
+    """BGR image of points over the image, the coverage grid shaded by how many each cell
+    holds; ``points_px`` (P, 2) pixels, ``text`` the title."""
+    canvas, scale, top = _canvas(image_size)
+    w, h = image_size
+    gx, gy = COVERAGE_GRID
+    points_px = np.asarray(points_px, np.float64).reshape(-1, 2)
+    points_px = points_px[np.all(np.isfinite(points_px), axis=1)]
+    cx = np.clip((points_px[:, 0] / w * gx).astype(int), 0, gx - 1)
+    cy = np.clip((points_px[:, 1] / h * gy).astype(int), 0, gy - 1)
     counts = np.zeros((gy, gx))
     np.add.at(counts, (cy, cx), 1)
     top_count = max(float(counts.max()), 1.0)
@@ -82,10 +95,8 @@ def coverage_plot(result: CalibrationResult) -> np.ndarray:
                 colour = (g, 255, g)
             cv2.rectangle(canvas, (x0, y0), (x1, y1), colour, -1)
             cv2.rectangle(canvas, (x0, y0), (x1, y1), _GREY, 1)
-    for p in _to_canvas(result.points_px, scale, top):
+    for p in _to_canvas(points_px, scale, top):
         cv2.circle(canvas, (round(p[0]), round(p[1])), 1, _BLUE, -1)
-    text = (f"{len(result.points_px)} points from {len(result.views_used)} views; "
-            f"{100 * result.coverage:.0f}% of the {gx}x{gy} grid covered (pink: empty)")
     cv2.putText(canvas, text, (10, 27), _FONT, 0.6, _BLACK, 1, cv2.LINE_AA)
     return canvas
 
@@ -132,8 +143,20 @@ def write_plots(directory: Path, result: CalibrationResult) -> list[Path]:
     for name, image in (("residuals.png", residual_plot(result)),
                         ("coverage.png", coverage_plot(result)),
                         ("per_view_error.png", per_view_plot(result))):
-        path = directory / name
-        if not cv2.imwrite(str(path), image):
-            raise ArtcalError(f"cannot write {path}")
-        out.append(path)
+        out.append(_write(directory / name, image))
     return out
+
+
+def write_detection_plots(directory: Path, image_size: tuple[int, int],
+                          points_px: np.ndarray, views: int) -> list[Path]:
+    """The plot a set without a calibration still has: coverage.png of the points detected
+    (``points_px`` (P, 2) pixels, from ``views`` images)."""
+    directory.mkdir(parents=True, exist_ok=True)
+    text = f"{len(points_px)} points detected in {views} images (no calibration)"
+    return [_write(directory / "coverage.png", points_plot(image_size, points_px, text))]
+
+
+def _write(path: Path, image: np.ndarray) -> Path:
+    if not cv2.imwrite(str(path), image):
+        raise ArtcalError(f"cannot write {path}")
+    return path

@@ -15,6 +15,7 @@ from typing import Any, NamedTuple
 import numpy as np
 
 from artcal_ros.core.calibrate.model import DIST_NAMES, INTRINSIC_NAMES, TIED_FOCAL
+from artcal_ros.core.calibrate.verdict import verdict_of
 from artcal_ros.core.camera import CameraModel, lens_spec
 
 
@@ -58,6 +59,8 @@ class CalibrationResult:
         solve_time_s: wall time of :func:`calibrate`, seconds.
         free: the parameters estimated (:func:`~.model.free_parameters`; ``f`` is fx = fy
             solved as one); the others were held (``calibrate.*`` parameters).
+        weak_reason: why the view checks would have refused the set (solved anyway on
+            request, ``accept_weak``); empty for a set they accept.
     """
 
     camera_matrix: np.ndarray
@@ -86,6 +89,7 @@ class CalibrationResult:
     outliers_px: np.ndarray = field(repr=False)
     solve_time_s: float = 0.0
     free: tuple[str, ...] = ()
+    weak_reason: str = ""
 
     @property
     def camera(self) -> CameraModel:
@@ -146,7 +150,9 @@ def _terms(result: CalibrationResult) -> list[str]:
 def summary_text(result: CalibrationResult, *, long: bool = False) -> str:
     """The calibration in words: one line (model, intrinsics with 1-sigma, errors, views,
     warnings), or with ``long`` one screen (also the distortion, hold-out error, projection
-    uncertainty, coverage and why views were left out). Held parameters say ``(fixed)``."""
+    uncertainty, coverage and why views were left out), its first line the verdict
+    (:func:`~artcal_ros.core.calibrate.verdict.verdict_of`). Held parameters say
+    ``(fixed)``."""
     r = result
     terms = _terms(r)
     n_k = 3 if TIED_FOCAL in r.free else 4  # the intrinsics among the terms
@@ -161,7 +167,8 @@ def summary_text(result: CalibrationResult, *, long: bool = False) -> str:
         if r.warnings:
             line += f"; warnings: {'; '.join(r.warnings)}"
         return line
-    lines = [f"camera: {r.model}, {r.image_size[0]}x{r.image_size[1]}, points: {r.points}",
+    lines = [verdict_of(r).text(),
+             f"camera: {r.model}, {r.image_size[0]}x{r.image_size[1]}, points: {r.points}",
              "  " + "   ".join(terms[:n_k]) + " px",
              "  distortion " + "  ".join(terms[n_k:]),
              f"reprojection error: {errors}",
@@ -212,4 +219,6 @@ def summary_dict(result: CalibrationResult) -> dict[str, Any]:
         "warnings": list(r.warnings),
         "free_parameters": list(r.free),
         "solve_time_s": r.solve_time_s,
+        "verdict": verdict_of(r).as_dict(),
+        "weak_reason": r.weak_reason,
     }

@@ -148,7 +148,7 @@ def detect_views(frames: Iterable[tuple[str, np.ndarray]], board: Board, *,
 
 def solve_session(views: Sequence[Detections], board: Board, image_size: tuple[int, int],
                   params: Mapping[str, Any], *, output: str | Path | None = None,
-                  max_views: int | None = None,
+                  max_views: int | None = None, accept_weak: bool = False,
                   progress: Callable[[str], None] | None = None) -> Session:
     """Select views, solve with the parameters' options and write the calibration YAML.
 
@@ -160,6 +160,8 @@ def solve_session(views: Sequence[Detections], board: Board, image_size: tuple[i
             camera_name, output_file).
         output: the YAML to write (default: :func:`~artcal_ros.core.params.output_path`).
         max_views: solve from at most this many views (default: ``max_views``).
+        accept_weak: solve a set the view checks refuse when a solve is possible at all
+            (:func:`~artcal_ros.core.calibrate.calibrate`'s ``accept_weak``).
         progress: called with a short message at each stage; may raise to stop.
 
     Raises:
@@ -174,7 +176,8 @@ def solve_session(views: Sequence[Detections], board: Board, image_size: tuple[i
     kwargs = calibrate_kwargs(params)
     if max_views is not None:
         kwargs["max_views"] = int(max_views)
-    result = calibrate(list(views), board, image_size=image_size, progress=progress, **kwargs)
+    result = calibrate(list(views), board, image_size=image_size, progress=progress,
+                       accept_weak=accept_weak, **kwargs)
     path = Path(output).expanduser() if output is not None else output_path(params)
     try:
         write_camera_info_yaml(path, result, camera_name=str(params["camera_name"]))

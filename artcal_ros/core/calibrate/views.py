@@ -9,6 +9,7 @@ so the solve stays fast without losing accuracy.
 
 from __future__ import annotations
 
+import re
 from collections.abc import Sequence
 from dataclasses import dataclass
 
@@ -126,6 +127,15 @@ def layout_outliers(view: ViewPoints, board: Board) -> np.ndarray:
     return bad
 
 
+_TOO_FEW = re.compile(r"\d+ (point|marker)\(s\), needs at least ")
+
+
+def board_not_found(reason: str) -> bool:
+    """Whether a :func:`view_problem` reason says the image gave too few of the board's
+    points or markers (the board was not found there, or barely)."""
+    return _TOO_FEW.match(reason) is not None
+
+
 def view_problem(view: ViewPoints, board: Board) -> str | None:
     """Why this view cannot take part in a solve, or None if it can."""
     ids = np.unique(view.marker_ids)
@@ -226,33 +236,64 @@ def tilt_spread_deg(normals: np.ndarray) -> float:
     return float(np.degrees(np.arccos(cos.min())))
 
 
-def check_views(views: Sequence[ViewPoints], image_size: tuple[int, int],
-                dropped: Sequence[tuple[int, str]], *,
-                cache: GeometryCache | None = None) -> None:
-    """Raise CalibrationError if ``views`` cannot pin down a camera; say what to add.
+def feature_term(board: Board) -> str:
+    """What a board's features are called in advice: its markers, tags, circles or points."""
+    return {"marker_grid": "markers", "aprilgrid": "tags", "circles": "circles",
+            "acircles": "circles"}.get(board.board_type, "points")
+
+
+def views_problem(views: Sequence[ViewPoints], image_size: tuple[int, int],
+                  dropped: Sequence[tuple[int, str]], *, board: Board | None = None,
+                  cache: GeometryCache | None = None) -> str | None:
+    """Why ``views`` cannot pin down a camera, with what to do; None when they can.
+
+    Tilting the board is advised only when the views' geometry is the problem: when most
+    images gave too few points the board was not found there, and no tilt helps.
 
     Args:
         views: the usable views.
         dropped: (index, reason) of the views already set aside, for the message.
+        board: the board, to name its features (markers, points, ...) in the message.
         cache: the views' geometry already computed (the guessed camera's).
     """
     if len(views) < MIN_VIEWS:
+        if board is None:
+            least = f"{MIN_MARKERS_PER_VIEW} markers or {MIN_POINTS_PER_VIEW} points"
+        else:
+            n = MIN_POINTS_PER_VIEW if board.has_points else MIN_MARKERS_PER_VIEW
+            least = f"{n} {feature_term(board)}"
         why = ""
+        reasons = sorted({r for _, r in dropped})
         if dropped:
-            reasons = sorted({r for _, r in dropped})
             why = f" ({len(dropped)} view(s) unusable: {'; '.join(reasons[:3])})"
-        raise CalibrationError(
-            f"{len(views)} usable view(s){why}; at least {MIN_VIEWS} are needed, each with "
-            f">= {MIN_MARKERS_PER_VIEW} markers over two rows and columns of the board. Add "
-            "views with the board tilted 20-45 degrees in different directions")
+        not_found = sum(1 for _, r in dropped if board_not_found(r))
+        given = len(views) + len(dropped)
+        if not_found and 2 * not_found >= given:
+            advice = (f"the board is not found in {not_found} of {given} images: check the "
+                      "board parameters against the printed board")
+        else:
+            advice = ("add views with the board tilted 20-45 degrees in different "
+                      "directions")
+        return (f"{len(views)} usable view(s){why}; at least {MIN_VIEWS} are needed, each "
+                f"with >= {least} over two rows and columns of the board; {advice}")
     geo = view_geometry(views, image_size, cache=cache)
     spread = tilt_spread_deg(geo.normals)
     if spread < MIN_TILT_SPREAD_DEG:
-        raise CalibrationError(
-            f"all {len(views)} views show the board at nearly the same angle (their board "
-            f"normals are within {spread:.1f} degrees of each other), which leaves the focal "
-            "length undetermined; add views with the board tilted 20-45 degrees left/right "
-            "and up/down")
+        return (f"all {len(views)} views show the board at nearly the same angle (their "
+                f"board normals are within {spread:.1f} degrees of each other), which leaves "
+                "the focal length undetermined; add views with the board tilted 20-45 "
+                "degrees left/right and up/down")
+    return None
+
+
+def check_views(views: Sequence[ViewPoints], image_size: tuple[int, int],
+                dropped: Sequence[tuple[int, str]], *,
+                cache: GeometryCache | None = None) -> None:
+    """Raise CalibrationError if ``views`` cannot pin down a camera (:func:`views_problem`
+    says why and what to add)."""
+    problem = views_problem(views, image_size, dropped, cache=cache)
+    if problem is not None:
+        raise CalibrationError(problem)
 
 
 def select_views(views: Sequence[ViewPoints], image_size: tuple[int, int], max_views: int,
