@@ -6,10 +6,17 @@
     artcal calibrate --bag BAG [--topic T] --params P --output camera.yaml [--report DIR]
     artcal calibrate IMAGE... --size 8x6 --square 0.108 --output camera.yaml   # a chessboard
     artcal calibrate IMAGE... --target april_6x6.yaml --output camera.yaml    # Kalibr's target
+    artcal calibrate IMAGE... --params P --accept-weak --report DIR   # a weak set, solved anyway
 
 The solve options are the parameters file's (``camera_model``, ``points``, ``max_views``,
 ``calibrate.*``), as for the calibrator node; the detection, solve, write and summary are
 the session path the node uses too (:mod:`artcal_ros.core.calibrate.session`).
+
+The output starts with the verdict (good / usable / poor and why,
+:mod:`artcal_ros.core.calibrate.verdict`); a board found in under half of the images is said
+first, with what a few of the other images show instead
+(:mod:`artcal_ros.core.calibrate.diagnosis`). ``--report DIR`` is written for a refused set
+too (:mod:`artcal_ros.cli.calibrate_report`).
 
 Exit status: 0 written; 1 the views cannot support a calibration (the reason is
 printed and no file is written, an existing one is left as it was); 2 bad usage or
@@ -19,7 +26,6 @@ input.
 from __future__ import annotations
 
 import argparse
-import json
 import os
 import sys
 import time
@@ -30,6 +36,12 @@ from typing import Any
 
 import numpy as np
 
+from artcal_ros.cli.calibrate_report import (
+    FrameSample,
+    arrange_summary,
+    write_refused_report,
+    write_report,
+)
 from artcal_ros.cli.common import (
     add_board_arguments,
     add_params_arguments,
@@ -39,12 +51,11 @@ from artcal_ros.cli.common import (
 from artcal_ros.cli.progress import Progress
 from artcal_ros.cli.skipped import SkippedFrames, expand_image_paths, read_image_file
 from artcal_ros.core.board import Board
-from artcal_ros.core.calibrate import CalibrationResult
 from artcal_ros.core.calibrate.board_check import check_board
+from artcal_ros.core.calibrate.diagnosis import BoardSearch
 from artcal_ros.core.calibrate.session import detect_views, session_summary, solve_session
 from artcal_ros.core.detect import Detector, DetectorConfig
-from artcal_ros.core.detections import Detections
-from artcal_ros.core.errors import ArtcalError, BagError, ImageFormatError, ParameterError
+from artcal_ros.core.errors import BagError, CalibrationError, ImageFormatError, ParameterError
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 DEFAULT_TOPIC = "/camera/image_raw"
@@ -62,7 +73,13 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="calibration file to write (default: the output_file parameter, "
                              "else ~/.ros/camera_info/<camera_name>.yaml)")
     parser.add_argument("--report", metavar="DIR",
-                        help="also write summary.json and PNG plots into DIR")
+                        help="also write summary.json, detections.json and PNG plots into "
+                             "DIR (a refused set too: the reason, the detections per image "
+                             "and the coverage of the points found)")
+    parser.add_argument("--accept-weak", action="store_true",
+                        help="solve a set the view checks refuse (fewer than 3 usable views, "
+                             "all at one tilt) when a solve is possible at all; the first "
+                             "line of the output then states how uncertain the result is")
     parser.add_argument("--max-views", type=int, default=None, metavar="N",
                         help="solve from at most N diverse views (default: the max_views "
                              "parameter, 40)")
@@ -231,46 +248,49 @@ def run(args: argparse.Namespace) -> int:
               else _file_frames(expand_image_paths(list(args.images)), args.quiet, skipped))
     start = time.monotonic()
     detector = Detector(board, DetectorConfig.from_params(params))
+    sample = FrameSample()  # a few frames, to search for what else is in view
     try:
-        dets, size = detect_views(_one_size(frames, skipped), board, detector=detector)
+        dets, size = detect_views(sample.wrap(_one_size(frames, skipped)), board,
+                                  detector=detector)
     except ParameterError:
         if not skipped.count:
             raise
         raise ImageFormatError(f"no usable frame: {skipped.summary()}") from None
     if skipped.count:
         warn(skipped.summary())
-
-    session = solve_session(dets, board, size, params, output=args.output,
-                            max_views=args.max_views, progress=say)
+    # searched only when the board is missing from most images (the search costs only then)
+    search = BoardSearch.of(dets, board, points=str(params["points"]), images=sample.images())
+    sample.kept.clear()
     tone = detector.tone
+    try:
+        session = solve_session(dets, board, size, params, output=args.output,
+                                max_views=args.max_views, accept_weak=args.accept_weak,
+                                progress=say)
+    except CalibrationError as e:
+        reason = f"{search.text()}; {e}" if search.partial else str(e)
+        if args.report:
+            write_refused_report(Path(args.report), reason, dets, board, params, size,
+                                 {"tone_curve": tone.as_dict(),
+                                  "board_check": check_board([], board).as_dict(),
+                                  "board_found": search.as_dict()})
+            reason += f" (report written to {args.report})"
+        raise CalibrationError(reason) from None
     check = check_board([dets[i] for i in session.result.views_used], board,
                         session.result.camera)
     if check.warning:
         warn(f"board check: {check.warning}")
     if args.report:
-        write_report(Path(args.report), session.result, dets,
-                     {"tone_curve": tone.as_dict(), "board_check": check.as_dict()})
+        write_report(Path(args.report), session.result, dets, board,
+                     {"tone_curve": tone.as_dict(), "board_check": check.as_dict(),
+                      "board_found": search.as_dict()})
     # The session's time is the solve's; the user waited for the detection too.
-    print(session_summary(replace(session, seconds=time.monotonic() - start), long=True))
-    print(f"tone curve: {tone.text()}")
-    print(f"board check: {check.text()}")
+    text = session_summary(replace(session, seconds=time.monotonic() - start), long=True)
+    print(arrange_summary(text, search, session.result))
+    if board.n_markers:  # the tone curve is estimated from marker edges, checked on markers
+        print(f"tone curve: {tone.text()}")
+    if board.board_type == "marker_grid":  # the only board the print check measures
+        print(f"board check: {check.text()}")
     if skipped.count:
         print(skipped.summary())
     return 0
 
-
-def write_report(directory: Path, result: CalibrationResult, dets: list[Detections],
-                 extra: dict[str, Any] | None = None) -> None:
-    """summary.json (with ``extra`` keys) and the PNG plots into ``directory``."""
-    from artcal_ros.core.calibrate.report import write_plots
-
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-        summary = result.to_summary_dict()
-        summary["frames"] = len(dets)
-        summary["sources_used"] = [dets[i].source for i in result.views_used]
-        summary.update(extra or {})
-        (directory / "summary.json").write_text(json.dumps(summary, indent=2) + "\n")
-    except OSError as e:
-        raise ArtcalError(f"cannot write the report into {directory}: {e.strerror}") from None
-    write_plots(directory, result)
