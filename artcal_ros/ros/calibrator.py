@@ -62,8 +62,9 @@ from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
 from artcal_ros.core.live import LiveDetection
 from artcal_ros.core.overlay import render_heat_map, render_overlay
-from artcal_ros.core.params import ParamValue
+from artcal_ros.core.params import PARAMETERS, ParamValue
 from artcal_ros.ros import msgs
+from artcal_ros.ros.command_line import CommandHelp, from_specs, handle_arguments, init_ros
 from artcal_ros.ros.diagnostics import Counters, diagnostic_array
 from artcal_ros.ros.image_subscription import ImageSubscription, QosChoice
 from artcal_ros.ros.latest import LatestWorker
@@ -359,8 +360,21 @@ class CalibratorNode(Node):
         self.session.close()  # the views as they are now, for resume
 
 
+HELP = CommandHelp(
+    "calibrator",
+    "Collects calibration views from the topic 'image' (remap it to the camera's), shows "
+    "them on ~/overlay and ~/coverage, and solves on the service ~/calibrate, publishing "
+    "camera_info and writing output_file.",
+    from_specs(PARAMETERS),
+    "calibrator --ros-args --params-file config/calibrator.yaml -r image:=/camera/image_raw")
+
+
 def main(args: list[str] | None = None) -> int:
-    """Entry point of ``ros2 run artcal_ros calibrator`` (console script ``calibrator``)."""
+    """Entry point of ``ros2 run artcal_ros calibrator`` (console script ``calibrator``);
+    ``args``: the whole command line as ``sys.argv`` (default: ``sys.argv``)."""
+    status = handle_arguments(sys.argv if args is None else args, HELP)
+    if status is not None:
+        return status
     # Precise detection runs in the background on one thread of compiled kernels, so the
     # other core stays free for the camera's frames (tracking, overlay, DDS); set
     # ARTCAL_THREADS to give it more.
@@ -371,7 +385,8 @@ def main(args: list[str] | None = None) -> int:
     # can wait that long behind the executor's and precise detection's Python code.
     sys.setswitchinterval(SWITCH_INTERVAL_S)
     stop = StopSignals.install()
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    if not init_ros(args, HELP.program, signal_handler_options=SignalHandlerOptions.NO):
+        return 2
     try:
         node = CalibratorNode(transport=transport)
     except (ParameterError, ArtcalError) as e:

@@ -62,6 +62,7 @@ from sensor_msgs.msg import CameraInfo
 from artcal_ros.bag import BagMessage, BagReader
 from artcal_ros.bag.qos import RecordedQos, recorded_qos
 from artcal_ros.core.errors import BagError, ParameterError
+from artcal_ros.ros.command_line import CommandHelp, ParamHelp, handle_arguments, init_ros
 from artcal_ros.ros.msgs import message_class
 from artcal_ros.ros.signals import StopSignals
 from artcal_ros.ros.transport import use_large_shared_memory
@@ -346,12 +347,27 @@ def _name(policy: Any) -> str:
     return str(policy.name).lower()
 
 
+HELP = CommandHelp(
+    "replay",
+    "Plays a rosbag2 MCAP recording (a directory or a bare .mcap file) on its recorded topics "
+    "and types, with the recorded timing scaled by rate.",
+    (*(ParamHelp(name, default, text, "required" if name == "bag" else "")
+       for name, (default, text) in _SCALARS.items()),
+     *(ParamHelp(name, [], text) for name, text in _ARRAYS.items())),
+    "replay --ros-args -p bag:=bags/sample -p rate:=1.0 -p loop:=false")
+
+
 def main(args: list[str] | None = None) -> int:
-    """Entry point of ``ros2 run artcal_ros replay`` (console script ``replay``)."""
+    """Entry point of ``ros2 run artcal_ros replay`` (console script ``replay``); ``args``:
+    the whole command line as ``sys.argv`` (default: ``sys.argv``)."""
+    status = handle_arguments(sys.argv if args is None else args, HELP)
+    if status is not None:
+        return status
     stop = StopSignals.install()
     # a camera's large frames sent best effort arrive only through a segment that holds them
     transport = use_large_shared_memory()  # before rclpy creates the participant
-    rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
+    if not init_ros(args, HELP.program, signal_handler_options=SignalHandlerOptions.NO):
+        return 2
     node = rclpy.create_node("replay")
     log = node.get_logger()
     status = 0
