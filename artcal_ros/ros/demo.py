@@ -5,7 +5,13 @@ Starts the calibrator and replay nodes as separate processes on a private DDS do
 from the start while views are still missing: a busy machine measures fewer of them in
 one pass), watches /diagnostics until enough views are collected and every view offered
 is measured, calls ``~/calibrate``, and prints the one-line summary, the published
-CameraInfo and the calibration file's path. Nothing is written outside ``--out``.
+CameraInfo and the calibration file's path.
+
+Nothing is written outside ``--out`` (default: a new temporary directory): the calibration
+file and the node logs go there, and the demo and its nodes run with ``ROS_HOME`` and
+``ROS_LOG_DIR`` inside it, so the calibrator's saved session (``$ROS_HOME/artcal/camera/``)
+and the ROS logs stay there too. A real camera's later run therefore finds no demo session to
+resume.
 
     python -m artcal_ros.ros.demo [--bag bags/sample] [--params config/calibrator.yaml]
                                   [--out DIR]
@@ -143,6 +149,14 @@ def _compare_with_truth(bag: Path, yaml_path: Path) -> None:
           f"{rms:.3f} px RMS, {worst:.3f} px max over the image")
 
 
+def private_ros_home(out: Path) -> dict[str, str]:
+    """The environment that keeps what ROS 2 processes save inside ``out``: ``ROS_HOME``
+    (the calibrator's session directory, rcl's default log directory) and ``ROS_LOG_DIR``
+    (set too: a user's own setting of it would otherwise win)."""
+    home = out / "ros_home"
+    return {"ROS_HOME": str(home), "ROS_LOG_DIR": str(home / "log")}
+
+
 def run(bag: Path, params_file: Path, out: Path, timeout_s: float,
         rate: float = 1.0, loop: bool = True) -> int:
     """The demo; 0 when the calibration succeeded.
@@ -150,14 +164,16 @@ def run(bag: Path, params_file: Path, out: Path, timeout_s: float,
     Args:
         bag: the recording to replay (absolute: the nodes run in ``out``).
         params_file: the calibrator's ROS 2 parameters file (absolute).
-        out: directory for camera.yaml and the node logs; the nodes' working directory.
+        out: directory for camera.yaml, the node logs, ROS_HOME (ROS logs, the saved
+            session); the nodes' working directory.
         timeout_s: seconds to wait for enough views.
         rate: replay speed (1.0: as recorded).
         loop: replay again and again until enough views are collected (False: once).
     """
-    # Our own DDS domain on this machine only, before any rclpy context exists; the node
-    # processes inherit it.
+    # Our own DDS domain on this machine only, and our own ROS_HOME, before any rclpy
+    # context exists (rcl picks its log directory then); the node processes inherit both.
     os.environ.update(private_domain_env())
+    os.environ.update(private_ros_home(out))
     import rclpy
     from diagnostic_msgs.msg import DiagnosticArray
     from rclpy.qos import DurabilityPolicy, QoSProfile, ReliabilityPolicy
@@ -170,7 +186,7 @@ def run(bag: Path, params_file: Path, out: Path, timeout_s: float,
           f"replaying {'in a loop ' if loop else 'once '}at rate {rate:.2f} into the "
           "calibrator "
           f"(ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}, parameters {params_file}, "
-          f"logs in {out})", flush=True)
+          f"logs, session and calibration in {out})", flush=True)
     # Run in ``out`` with absolute paths: nothing depends on where the demo was started.
     calibrator = NodeProcess.python_module("artcal_ros.ros.calibrator", [
         "--ros-args", "--params-file", str(params_file), "-r", f"image:={topic}",
@@ -276,7 +292,8 @@ def main(argv: list[str] | None = None) -> int:
                     help=f"the calibrator's ROS 2 parameters file (default: {PARAMS_FILE} "
                          "here, else the installed one)")
     ap.add_argument("--out", type=Path, default=None,
-                    help="directory for camera.yaml and the node logs (default: a new temp dir)")
+                    help="directory for camera.yaml, the logs and the saved session (default: "
+                         "a new temp dir)")
     ap.add_argument("--rate", type=float, default=1.0,
                     help="replay speed (default 1.0: as recorded)")
     ap.add_argument("--once", action="store_true",

@@ -35,13 +35,16 @@ from test.integration.streaming import Streamer
 pytestmark = pytest.mark.integration
 
 CAMERA = "resumecam"
+# Every start reads the same camera: a session of another image topic is not resumed.
+IMAGE_TOPIC = f"/{CAMERA}/image"
 SAVED_VIEWS = 5  # wait for this many in the file before the kill
 MIN_VIEWS = 4
 
 
 def start(tmp_path: Path, name: str, *params: str) -> NodeProcess:
     return calibrator_node(tmp_path, name, f"camera_name:={CAMERA}", f"min_views:={MIN_VIEWS}",
-                           *params, env={**os.environ, "HOME": str(tmp_path / "home")})
+                           *params, image_topic=IMAGE_TOPIC,
+                           env={**os.environ, "HOME": str(tmp_path / "home")})
 
 
 def saved_views(path: Path) -> int:
@@ -63,7 +66,7 @@ def test_views_survive_kill_9_and_resume(tmp_path: Path, probe: Probe,
     diagnostics = probe.collect(DiagnosticArray, "/diagnostics", RELIABLE)
 
     node = start(tmp_path, "cal_kill")
-    publisher = probe.node.create_publisher(Image, "/cal_kill/image", RELIABLE)
+    publisher = probe.node.create_publisher(Image, IMAGE_TOPIC, RELIABLE)
     streamer = Streamer(publisher, frames, 0.3)
     try:
         n = wait_until(lambda: (lambda k: k if k >= SAVED_VIEWS else 0)(saved_views(session)),

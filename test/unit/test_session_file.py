@@ -1,6 +1,7 @@
 """The node's saved session: views written and read back exactly, damaged, foreign and
 other-board files refused with the reason, the store saving only on change and keeping an
-old session it did not resume."""
+old session it did not resume; the session's source (camera, image topic, board) saved with
+it, and a resume of another source refused with whose it is and what to do."""
 
 from __future__ import annotations
 
@@ -15,7 +16,10 @@ from artcal_ros.core.calibrate.session_file import (
     FILE_NAME,
     PREVIOUS_NAME,
     SessionFileError,
+    SessionMismatchError,
+    SessionSource,
     SessionStore,
+    load_session,
     read_session,
     session_dir,
     write_session,
@@ -64,7 +68,15 @@ def test_an_empty_session_reads_back_empty(tmp_path: Path) -> None:
 
 def test_the_session_dir_follows_home(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     monkeypatch.setenv("HOME", str(tmp_path))
+    monkeypatch.delenv("ROS_HOME", raising=False)
     assert session_dir("cam1") == tmp_path / ".ros" / "artcal" / "cam1"
+
+
+def test_the_session_dir_follows_ros_home(tmp_path: Path,
+                                          monkeypatch: pytest.MonkeyPatch) -> None:
+    monkeypatch.setenv("HOME", str(tmp_path / "home"))
+    monkeypatch.setenv("ROS_HOME", str(tmp_path / "ros"))
+    assert session_dir("cam1") == tmp_path / "ros" / "artcal" / "cam1"
 
 
 @pytest.mark.parametrize(("content", "reason"), [
@@ -178,3 +190,87 @@ def test_another_image_size_after_a_resume_keeps_the_old_views(tmp_path: Path) -
     assert len(warnings) == 1 and "1280x800" in warnings[0] and "640x480" in warnings[0]
     assert len(read_session(path.with_name(PREVIOUS_NAME), BOARD).views) == 3
     assert read_session(path, BOARD).image_size == (1280, 800)
+
+
+DEMO = SessionSource("camera", "/demo/image", BOARD.describe())
+REAL = SessionSource("camera", "/camera/image_raw", BOARD.describe())
+
+
+def make_old(path: Path) -> None:
+    """Rewrite a session as the versions before the source was saved wrote it."""
+    with np.load(path) as z:
+        arrays = {k: z[k] for k in z.files}
+    meta = json.loads(str(arrays["meta"]))
+    del meta["source"], meta["board"]["type"], meta["board"]["square_length"]
+    arrays["meta"] = np.array(json.dumps(meta))
+    with path.open("wb") as f:
+        np.savez(f, **arrays)
+
+
+def test_the_source_is_saved_with_the_views(tmp_path: Path) -> None:
+    path = tmp_path / FILE_NAME
+    write_session(path, views(3), BOARD, DEMO)
+    back = load_session(path)
+    assert back.source == DEMO and len(back.views) == 3
+    assert back.difference(BOARD, DEMO) is None
+    write_session(path, views(3), BOARD)
+    assert load_session(path).source is None
+
+
+def test_a_resume_from_another_image_topic_is_refused_saying_whose_and_what_to_do(
+        tmp_path: Path) -> None:
+    path = tmp_path / "camera" / FILE_NAME
+    write_session(path, views(3), BOARD, DEMO)
+    c = collector()
+    store = SessionStore(path, BOARD, c, warn=print, source=REAL)
+    with pytest.raises(SessionMismatchError) as e:
+        store.open(resume=True)
+    text = str(e.value)
+    assert "\n" not in text and not c.views
+    assert f"{path.parent}/" in text and "3 views of 640x480 images" in text
+    assert "recorded from /demo/image" in text and "this node reads /camera/image_raw" in text
+    assert "start without resume:=true" in text and "camera_name" in text
+    assert BOARD.describe() in text
+
+
+def test_a_resume_with_another_board_is_refused_naming_both(tmp_path: Path) -> None:
+    path = tmp_path / FILE_NAME
+    write_session(path, views(2), BOARD, REAL)
+    other = Board(cols=10, rows=7, dictionary_name="DICT_4X4_250")
+    source = SessionSource("camera", REAL.image_topic, other.describe())
+    with pytest.raises(SessionMismatchError) as e:
+        SessionStore(path, other, collector(), warn=print, source=source).open(resume=True)
+    assert f"with board {BOARD.describe()}" in str(e.value)
+    assert f"reads /camera/image_raw with board {other.describe()}" in str(e.value)
+    chess = Board(board_type="chessboard", cols=BOARD.cols, rows=BOARD.rows)
+    with pytest.raises(SessionMismatchError, match="chessboard"):
+        SessionStore(path, chess, collector(), warn=print).open(resume=True)
+
+
+def test_without_resume_another_source_is_not_offered_for_resume(tmp_path: Path) -> None:
+    path = tmp_path / FILE_NAME
+    write_session(path, views(3), BOARD, DEMO)
+    c = collector()
+    store = SessionStore(path, BOARD, c, warn=print, source=REAL)
+    lines = store.open(resume=False)
+    assert len(lines) == 1 and "another camera or board" in lines[0]
+    assert "/demo/image" in lines[0] and "resume:=true" not in lines[0] and not c.views
+    c.add(views(1, seed=9)[0])
+    assert store.save_if_changed()
+    assert load_session(path).source == REAL
+    assert load_session(path.with_name(PREVIOUS_NAME)).source == DEMO
+
+
+def test_an_older_file_without_its_source_still_resumes_and_says_so(tmp_path: Path) -> None:
+    path = tmp_path / FILE_NAME
+    write_session(path, views(3), BOARD, DEMO)
+    make_old(path)
+    assert load_session(path).source is None
+    c = collector()
+    lines = SessionStore(path, BOARD, c, warn=print, source=REAL).open(resume=True)
+    assert len(c.views) == 3 and "resumed 3 views" in lines[0]
+    assert "does not say which image topic" in lines[1]
+    other = Board(cols=10, rows=7, dictionary_name="DICT_4X4_250")
+    with pytest.raises(SessionMismatchError) as e:
+        SessionStore(path, other, collector(), warn=print).open(resume=True)
+    assert "19x9 DICT_6X6_1000" in str(e.value) and "recorded with board" in str(e.value)

@@ -1,18 +1,24 @@
 """The node's saved session: the views collected so far, on disk, safe against a kill.
 
 The calibrator keeps its views (detections, never images) in
-``~/.ros/artcal/<camera_name>/session.npz`` (``~`` is ``$HOME``), rewritten atomically
-(temporary file, fsync, rename) every few seconds while the collection changes and once
-more on a clean stop. After a crash or ``kill -9`` at most those few seconds are lost:
-started again with ``resume: true``, the node continues with the saved views. A file
-that is not a session, is of another format version, or was made with another board is
-refused with the reason and the node starts empty.
+``$ROS_HOME/artcal/<camera_name>/session.npz`` (``ROS_HOME`` as rcl reads it for its logs:
+``~/.ros`` unless set), rewritten atomically (temporary file, fsync, rename) every few
+seconds while the collection changes and once more on a clean stop. After a crash or
+``kill -9`` at most those few seconds are lost: started again with ``resume: true``, the
+node continues with the saved views. A file that is not a session or is of another format
+version is refused with the reason and the node starts empty.
+
+The file also says where its views came from (:class:`SessionSource`: camera name, image
+topic, board). A resume of views from another board or image topic is refused
+(:class:`SessionMismatchError`): they would mix another camera's views into this one's
+calibration. Files from before the source was recorded still load; their board is checked.
 
 The file is a NumPy ``.npz`` archive read with ``allow_pickle=False`` (a damaged or
 foreign file cannot run code). Arrays, with M the markers of all views together and V
 the views:
 
-    meta            () str: JSON {"format", "board", "image_size", "saved_unix_s", "views"}
+    meta            () str: JSON {"format", "board", "image_size", "saved_unix_s", "views",
+                    "source" (optional: {"camera_name", "image_topic", "board"})}
     ids             (M,) int64
     corners_px      (M, 4, 2) float64, pixels
     centers_px      (M, 2) float64, pixels
@@ -51,17 +57,75 @@ class SessionFileError(ArtcalError):
     """A saved session cannot be used (not a session, another format, another board)."""
 
 
+class SessionMismatchError(SessionFileError):
+    """A saved session is of another board or image topic than the node resuming it."""
+
+
+def ros_home() -> Path:
+    """``$ROS_HOME`` (``~`` expanded), else ``~/.ros``: where rcl keeps its logs too."""
+    value = os.environ.get("ROS_HOME", "")
+    return Path(os.path.expanduser(value)) if value else Path.home() / ".ros"
+
+
 def session_dir(camera_name: str) -> Path:
-    """``~/.ros/artcal/<camera_name>/`` (``~`` from ``$HOME``)."""
-    return Path.home() / ".ros" / "artcal" / camera_name
+    """``$ROS_HOME/artcal/<camera_name>/`` (``~/.ros/artcal/<camera_name>/`` by default)."""
+    return ros_home() / "artcal" / camera_name
 
 
 def board_signature(board: Board) -> dict[str, Any]:
-    """What must match for saved views to belong to ``board``: layout, sizes, ids."""
-    return {"cols": board.cols, "rows": board.rows, "first_id": board.first_id,
-            "dictionary": board.dictionary_name,
+    """What must match for saved views to belong to ``board``: type, layout, sizes, ids."""
+    return {"type": board.board_type, "cols": board.cols, "rows": board.rows,
+            "first_id": board.first_id, "dictionary": board.dictionary_name,
             "marker_length": round(float(board.marker_length), 9),
-            "marker_separation": round(float(board.marker_separation), 9)}
+            "marker_separation": round(float(board.marker_separation), 9),
+            "square_length": round(float(board.square_length), 9)}
+
+
+def same_board(saved: dict[str, Any], board: Board) -> bool:
+    """Whether a saved signature is ``board``'s. Older files hold fewer keys (no type, no
+    square length): only the keys they hold are compared."""
+    want = board_signature(board)
+    return isinstance(saved, dict) and set(saved) <= set(want) and bool(saved) \
+        and all(saved[k] == want[k] for k in saved)
+
+
+def _signature_text(signature: dict[str, Any]) -> str:
+    # An older file's board, in words (it holds no description of its own).
+    try:
+        return (f"{signature['cols']}x{signature['rows']} {signature['dictionary']} ids from "
+                f"{signature['first_id']}, marker {signature['marker_length'] * 1000:g} mm, "
+                f"gap {signature['marker_separation'] * 1000:g} mm")
+    except (KeyError, TypeError):
+        return str(signature)
+
+
+@dataclass(frozen=True)
+class SessionSource:
+    """Where a session's views come from.
+
+    Attributes:
+        camera_name: the node's ``camera_name`` (the session directory's name).
+        image_topic: the image topic as the node resolved it (remappings applied).
+        board: the board in words (:meth:`Board.describe`).
+    """
+
+    camera_name: str
+    image_topic: str
+    board: str
+
+    def as_json(self) -> dict[str, str]:
+        return {"camera_name": self.camera_name, "image_topic": self.image_topic,
+                "board": self.board}
+
+    @classmethod
+    def from_json(cls, value: Any) -> SessionSource | None:
+        """The source saved in a file's meta; None for a file without one (or a bad one)."""
+        if not isinstance(value, dict):
+            return None
+        fields = [value.get(k) for k in ("camera_name", "image_topic", "board")]
+        if not all(isinstance(f, str) for f in fields):
+            return None
+        return cls(*(str(f) for f in fields))
 
 
 @dataclass(frozen=True)
@@ -72,11 +136,36 @@ class SavedSession:
         views: the views, oldest first (all of ``image_size``).
         image_size: (width, height) of the views, pixels; None with no views.
         saved_unix_s: when it was written, seconds since the epoch.
+        board_signature: the board's :func:`board_signature` as saved.
+        source: where the views came from; None in a file written before it was recorded.
     """
 
     views: list[Detections]
     image_size: tuple[int, int] | None
     saved_unix_s: float
+    board_signature: dict[str, Any]
+    source: SessionSource | None = None
+
+    def difference(self, board: Board, source: SessionSource | None) -> tuple[str, str] | None:
+        """(what these views were recorded from, what ``source`` reads) in words when the
+        board or the image topic differs, else None. Without a saved source (an older file)
+        or without ``source`` only the board is compared."""
+        other_board = not same_board(self.board_signature, board)
+        other_topic = self.source is not None and source is not None \
+            and self.source.image_topic != source.image_topic
+        if not (other_board or other_topic):
+            return None
+        size = f" of {self.image_size[0]}x{self.image_size[1]} images" \
+            if self.image_size else ""
+        if self.source is not None:
+            theirs = (f"camera_name '{self.source.camera_name}': {len(self.views)} views{size} "
+                      f"recorded from {self.source.image_topic} with board {self.source.board}")
+        else:
+            theirs = (f"{len(self.views)} views{size} recorded with board "
+                      f"{_signature_text(self.board_signature)}")
+        ours = f"with board {board.describe()}" if source is None else \
+            f"{source.image_topic} with board {source.board}"
+        return theirs, ours
 
 
 def _fsync_dir(path: Path) -> None:
@@ -93,9 +182,10 @@ def _fsync_dir(path: Path) -> None:
         os.close(fd)
 
 
-def write_session(path: Path, views: Sequence[Detections], board: Board) -> None:
+def write_session(path: Path, views: Sequence[Detections], board: Board,
+                  source: SessionSource | None = None) -> None:
     """Write ``views`` atomically: a reader (or a restart after a kill) sees the old file
-    or the new one, whole.
+    or the new one, whole. ``source``: where they came from (saved with them).
 
     Raises:
         OSError: the directory or the file cannot be written (the old file is untouched).
@@ -111,7 +201,8 @@ def write_session(path: Path, views: Sequence[Detections], board: Board) -> None
 
     meta = {"format": FORMAT, "board": board_signature(board),
             "image_size": list(sizes.pop()) if sizes else None,
-            "saved_unix_s": time.time(), "views": len(views)}
+            "saved_unix_s": time.time(), "views": len(views),
+            "source": source.as_json() if source is not None else None}
     arrays: dict[str, Any] = {
         "meta": np.array(json.dumps(meta)),
         "ids": np.concatenate([v.ids for v in views]).astype(np.int64) if views
@@ -140,8 +231,24 @@ def read_session(path: Path, board: Board) -> SavedSession:
     """Read a session written by :func:`write_session` for ``board``.
 
     Raises:
-        SessionFileError: the file is missing, damaged, of another format, or of another
-            board (the message says which and what was expected).
+        SessionFileError: the file is missing, damaged or of another format;
+            SessionMismatchError: of another board (the message says which and what was
+            expected).
+    """
+    saved = load_session(path)
+    if not same_board(saved.board_signature, board):
+        raise SessionMismatchError(f"{path} was made with another board "
+                                   f"({saved.board_signature}); this node's board is "
+                                   f"{board_signature(board)}")
+    return saved
+
+
+def load_session(path: Path) -> SavedSession:
+    """Read a session written by :func:`write_session`, of whichever board.
+
+    Raises:
+        SessionFileError: the file is missing, damaged, or of another format (the message
+            says which).
     """
     try:
         with np.load(path, allow_pickle=False) as z:
@@ -159,10 +266,6 @@ def read_session(path: Path, board: Board) -> SavedSession:
     except Exception as e:  # zip, npy, JSON or key errors: all mean a damaged file
         raise SessionFileError(f"{path} is not a readable session ({type(e).__name__}: "
                                f"{e})") from None
-    want = board_signature(board)
-    if meta.get("board") != want:
-        raise SessionFileError(f"{path} was made with another board ({meta.get('board')}); "
-                               f"this node's board is {want}")
     try:
         size = meta["image_size"]
         image_size = None if size is None else (int(size[0]), int(size[1]))
@@ -171,7 +274,10 @@ def read_session(path: Path, board: Board) -> SavedSession:
         raise SessionFileError(f"{path} holds inconsistent views ({e})") from None
     if len(views) != int(meta.get("views", -1)):
         raise SessionFileError(f"{path} says {meta.get('views')} views but holds {len(views)}")
-    return SavedSession(views, image_size, float(meta.get("saved_unix_s", 0.0)))
+    signature = meta.get("board")
+    return SavedSession(views, image_size, float(meta.get("saved_unix_s", 0.0)),
+                        signature if isinstance(signature, dict) else {},
+                        SessionSource.from_json(meta.get("source")))
 
 
 def _views(data: dict[str, np.ndarray], image_size: tuple[int, int] | None
@@ -210,12 +316,16 @@ class SessionStore:
         collector: the collection to save and to restore into.
         warn: called with a one-line message when saving fails (once per distinct reason).
         period_s: seconds between checks for a change.
+        source: where the views come from: saved with them, and a saved session of another
+            image topic is not resumed (None: only the board is compared).
     """
 
     def __init__(self, path: Path, board: Board, collector: ViewCollector, *,
-                 warn: Callable[[str], None], period_s: float = SAVE_PERIOD_S) -> None:
+                 warn: Callable[[str], None], period_s: float = SAVE_PERIOD_S,
+                 source: SessionSource | None = None) -> None:
         self.path = path
         self.board = board
+        self.source = source
         self.collector = collector
         self._warn = warn
         self._period_s = period_s
@@ -229,17 +339,35 @@ class SessionStore:
 
     def open(self, *, resume: bool) -> list[str]:
         """Restore the saved views into the collector (``resume``), or leave them and say
-        how to resume. Returns the messages for the log, warnings prefixed ``WARN: ``."""
+        how to resume. Returns the messages for the log, warnings prefixed ``WARN: ``.
+
+        Raises:
+            SessionMismatchError: ``resume`` of views from another board or image topic
+                (the message says whose they are and what to do).
+        """
         if not self.path.exists():
             return [f"session: none saved yet; views will be saved in {self.path}"] \
                 if resume else []
         try:
-            saved = read_session(self.path, self.board)
+            saved = load_session(self.path)
         except SessionFileError as e:
             self._keep_previous = True
             return [f"WARN: session not resumed, starting empty: {e}; it is kept as "
                     f"{self.path.with_name(PREVIOUS_NAME)} once new views are saved"]
         age = time.strftime("%Y-%m-%d %H:%M:%S", time.localtime(saved.saved_unix_s))
+        difference = saved.difference(self.board, self.source)
+        if difference is not None:
+            theirs, ours = difference
+            if resume:
+                raise SessionMismatchError(
+                    f"the saved session in {self.path.parent}/ ({theirs}, saved {age}) is not "
+                    f"this camera's: this node reads {ours}; start without resume:=true (the "
+                    f"saved views are then kept as {PREVIOUS_NAME}), or give this camera its "
+                    "own camera_name")
+            self._keep_previous = True
+            return [f"an earlier session in {self.path} is of another camera or board "
+                    f"({theirs}, saved {age}); starting empty (it is kept as {PREVIOUS_NAME} "
+                    "once new views are saved)"]
         if not resume:
             self._keep_previous = True
             return [f"an earlier session of {len(saved.views)} views (saved {age}) is in "
@@ -249,7 +377,12 @@ class SessionStore:
         self._saved = self.collector.views
         note = "" if kept == len(saved.views) else \
             f" ({len(saved.views) - kept} no longer pass the collection's checks)"
-        return [f"resumed {kept} views saved {age} from {self.path}{note}"]
+        lines = [f"resumed {kept} views saved {age} from {self.path}{note}"]
+        if saved.source is None and self.source is not None:
+            lines.append("the session file does not say which image topic its views came "
+                         "from (an older version saved it): resumed as this camera's, its "
+                         "board checked; the next save records the source")
+        return lines
 
     def start(self) -> None:
         """Begin saving in the background."""
@@ -282,7 +415,7 @@ class SessionStore:
                 if self._keep_previous and self.path.exists():
                     os.replace(self.path, self.path.with_name(PREVIOUS_NAME))
                 self._keep_previous = False
-                write_session(self.path, views, self.board)
+                write_session(self.path, views, self.board, self.source)
             except (OSError, SessionFileError) as e:
                 reason = f"cannot save the session in {self.path}: " \
                     f"{getattr(e, 'strerror', None) or e}"
