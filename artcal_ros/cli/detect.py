@@ -25,7 +25,6 @@ from pathlib import Path
 from typing import Any
 
 import cv2
-import numpy as np
 
 from artcal_ros.cli.common import (
     add_board_arguments,
@@ -33,10 +32,11 @@ from artcal_ros.cli.common import (
     board_overrides,
     params_from_args,
 )
+from artcal_ros.cli.detect_overlay import draw_detections
 from artcal_ros.cli.skipped import SkippedFrames, expand_image_paths, read_image_file
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector, DetectorConfig
-from artcal_ros.core.detections import Detections, tag_corner_points
+from artcal_ros.core.detections import tag_corner_points
 from artcal_ros.core.errors import ImageFormatError, ParameterError
 
 
@@ -56,38 +56,6 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
 
 # the image reader of every verb (an image per file, errors naming the file)
 read_image = read_image_file
-
-
-def draw_detections(image: np.ndarray, dets: Detections) -> np.ndarray:
-    """(H, W, 3) BGR uint8: ``image`` with quads (green), ids, corners (red) and centres (blue).
-
-    Points are drawn with 1/16-pixel precision at their sub-pixel positions.
-    """
-    img = image
-    if img.dtype == np.uint16:
-        img = (img / 257.0).astype(np.uint8)
-    out = cv2.cvtColor(img, cv2.COLOR_GRAY2BGR) if img.ndim == 2 else img.copy()
-    shift = 4
-    scale = float(1 << shift)
-    thick = max(1, round(min(out.shape[:2]) / 480))
-    for marker_id, quad, center in zip(dets.ids, dets.corners_px, dets.centers_px, strict=True):
-        pts = np.round(quad * scale).astype(np.int32)
-        cv2.polylines(out, [pts], True, (0, 200, 0), thick, cv2.LINE_AA, shift)
-        for p in pts:
-            cv2.circle(out, (int(p[0]), int(p[1])), int(2 * scale), (0, 0, 255), thick,
-                       cv2.LINE_AA, shift)
-        c = np.round(center * scale).astype(np.int32)
-        cv2.drawMarker(out, (int(c[0] >> shift), int(c[1] >> shift)), (255, 80, 0),
-                       cv2.MARKER_CROSS, 6 * thick, thick)
-        cv2.putText(out, str(int(marker_id)), (int(quad[0, 0]) + 2, int(quad[0, 1]) - 3),
-                    cv2.FONT_HERSHEY_SIMPLEX, 0.35 * thick, (0, 120, 255), thick, cv2.LINE_AA)
-    for point_id, xy in zip(dets.point_ids, dets.points_px, strict=True):
-        p = np.round(xy * scale).astype(np.int32)
-        cv2.circle(out, (int(p[0]), int(p[1])), int(3 * scale), (255, 0, 255), thick,
-                   cv2.LINE_AA, shift)
-        cv2.putText(out, str(int(point_id)), (int(xy[0]) + 4, int(xy[1]) + 12),
-                    cv2.FONT_HERSHEY_SIMPLEX, 0.3 * thick, (255, 0, 255), thick, cv2.LINE_AA)
-    return out
 
 
 def _found(board: Board, markers: int, points: int) -> str:

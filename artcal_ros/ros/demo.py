@@ -157,6 +157,12 @@ def private_ros_home(out: Path) -> dict[str, str]:
     return {"ROS_HOME": str(home), "ROS_LOG_DIR": str(home / "log")}
 
 
+# What the progress lines count, said once before them (the node's diagnostics keys).
+LEGEND = ("demo: progress lines count frames seen (reached the calibrator), processed (markers "
+          "tracked and the overlay drawn), measured (detected precisely: only these become "
+          "views), views kept / needed before ~/calibrate is called, and the image coverage")
+
+
 def run(bag: Path, params_file: Path, out: Path, timeout_s: float,
         rate: float = 1.0, loop: bool = True) -> int:
     """The demo; 0 when the calibration succeeded.
@@ -187,6 +193,7 @@ def run(bag: Path, params_file: Path, out: Path, timeout_s: float,
           "calibrator "
           f"(ROS_DOMAIN_ID={os.environ['ROS_DOMAIN_ID']}, parameters {params_file}, "
           f"logs, session and calibration in {out})", flush=True)
+    print(LEGEND, flush=True)
     # Run in ``out`` with absolute paths: nothing depends on where the demo was started.
     calibrator = NodeProcess.python_module("artcal_ros.ros.calibrator", [
         "--ros-args", "--params-file", str(params_file), "-r", f"image:={topic}",

@@ -41,3 +41,7 @@ def test_the_demo_writes_nothing_under_home(tmp_path: Path) -> None:
     assert len(load_session(session).views) > 0, done.stdout
     assert any((out / "ros_home" / "log").iterdir()), "no ROS logs in the demo's directory"
     assert (out / "calibrator.log").is_file()
+    # the progress line's counts are explained before the first one (issue 26, point 10)
+    legend = done.stdout.find("measured (detected precisely")
+    first = done.stdout.find("  frames seen")
+    assert 0 <= legend < first, done.stdout
