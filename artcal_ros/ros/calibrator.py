@@ -31,6 +31,7 @@ number of them, stop the node in order and it exits 0.
 
 from __future__ import annotations
 
+import gc
 import os
 import sys
 import threading
@@ -393,6 +394,10 @@ def main(args: list[str] | None = None) -> int:
         rclpy.logging.get_logger("calibrator").fatal(f"refusing to start: {e}")
         rclpy.try_shutdown()
         return 2
+    # What start-up made (modules, the node, detector tables) lives as long as the process:
+    # out of the collector's sight, a full collection no longer walks it between two frames.
+    gc.collect()
+    gc.freeze()
     executor = MultiThreadedExecutor(num_threads=4)
     executor.add_node(node)
     spin_thread = None
