@@ -488,7 +488,8 @@ def _started(proc: NodeProcess, stop_timeout: float) -> Iterator[NodeProcess]:
 
 def run_load(spec: LoadSpec, work_dir: Path, *, discovery_timeout: float = 60.0,
              drain_timeout: float | None = None,
-             log: Callable[[str], None] = lambda s: print(s, flush=True)) -> LoadResult:
+             log: Callable[[str], None] = lambda s: print(s, flush=True),
+             frames: Sequence[np.ndarray] | None = None) -> LoadResult:
     """One run (see the module docstring); the node and the publisher are always stopped.
 
     Uses the ROS environment of this process as it is (ROS_DOMAIN_ID,
@@ -503,6 +504,7 @@ def run_load(spec: LoadSpec, work_dir: Path, *, discovery_timeout: float = 60.0,
             each other, seconds (discovery takes up to ~3.5 s on an idle machine).
         drain_timeout: how long to wait after the stream for the node's last frame to
             finish (default: 30 s or 4 detections, whichever is longer).
+        frames: the views to send, already rendered for ``spec`` (default: render them).
     """
     work_dir = Path(work_dir)
     work_dir.mkdir(parents=True, exist_ok=True)
@@ -510,12 +512,15 @@ def run_load(spec: LoadSpec, work_dir: Path, *, discovery_timeout: float = 60.0,
     result = LoadResult(spec=spec, transport=Path(profile).name if profile else "default",
                         load_before=os.getloadavg())
     t0 = time.monotonic()
-    frames = render_frames(spec)
+    given = frames is not None
+    frames = list(frames) if frames is not None else render_frames(spec)
     result.render_s = time.monotonic() - t0
     result.frame_bytes = int(frames[0].nbytes)
     np.save(work_dir / "frames.npy", np.stack(frames))
-    log(f"  rendered {len(frames)} views {spec.width}x{spec.height} {spec.encoding} "
-        f"in {result.render_s:.1f} s ({result.frame_bytes / 1e6:.2f} MB a frame)")
+    log(f"  {'the same' if given else 'rendered'} {len(frames)} views {spec.width}x"
+        f"{spec.height} {spec.encoding}"
+        + ("" if given else f" in {result.render_s:.1f} s")
+        + f" ({result.frame_bytes / 1e6:.2f} MB a frame)")
     if spec.baseline:
         result.detect_s = detection_time(frames, spec.encoding)
         log(f"  detection here: {result.detect_s:.2f} s a frame (median of 3)")
@@ -826,7 +831,10 @@ def main(argv: list[str] | None = None) -> int:
             if full and spec.node:
                 print("  the same stream with nobody subscribed", flush=True)
                 alone = replace(spec, node=False, alone=True, baseline=False)
-                pairs.append((results[-1], run_load(alone, root / f"{name}_alone")))
+                # the frames the run just sent, as it saved them
+                sent = np.load(root / name / "frames.npy")
+                pairs.append((results[-1], run_load(alone, root / f"{name}_alone",
+                                                    frames=list(sent))))
     print()
     if args.dds_only or args.alone:
         print(dds_table(results))
