@@ -5,6 +5,7 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
+from artcal_ros.core.boards.dictionaries import predefined_code
 from artcal_ros.core.errors import ParameterError
 from artcal_ros.core.kalibr_target import target_params
 from artcal_ros.core.params import ParamValue, length_complaint, load_params, parse_override
@@ -83,8 +84,6 @@ def length_option(flag: str, value: float | None) -> float | None:
 def aruco_dict_name(value: str) -> str:
     """camera_calibration's ``--aruco_dict`` value (``6x6_250``, ``aruco_orig``) or OpenCV's
     name (``DICT_6X6_250``) as OpenCV's name."""
-    import cv2
-
     text = value.strip()
     if text.lower() == "aruco_orig":
         name = "DICT_ARUCO_ORIGINAL"
@@ -92,7 +91,7 @@ def aruco_dict_name(value: str) -> str:
         name = text.upper()
     else:
         name = "DICT_" + text.upper()
-    if isinstance(getattr(cv2.aruco, name, None), int):
+    if predefined_code(name) is not None:
         return name
     raise ParameterError(f"--aruco_dict {value!r}: not an ArUco dictionary; use "
                          "camera_calibration's names (aruco_orig, 4x4_50 ... 7x7_1000, e.g. "

@@ -40,6 +40,7 @@ from artcal_ros.core.boards import BUILT_TYPES, PLANNED_TYPES, POINT_TYPES
 from artcal_ros.core.boards import aprilgrid as kalibr
 from artcal_ros.core.boards.chess import ChessLayout
 from artcal_ros.core.boards.circles import CircleLayout
+from artcal_ros.core.boards.dictionaries import predefined_code, predefined_names
 from artcal_ros.core.boards.text import cv_board, describe, print_lines, size_parameters
 from artcal_ros.core.errors import BoardError
 
@@ -48,11 +49,10 @@ POLARITIES = ("black", "white", "mixed", "any")
 
 def dictionary_by_name(name: str) -> cv2.aruco.Dictionary:
     """The OpenCV predefined ArUco dictionary called ``name`` (e.g. ``DICT_6X6_1000``)."""
-    code = getattr(cv2.aruco, name, None) if name.startswith("DICT_") else None
-    if not isinstance(code, int):
-        known = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
+    code = predefined_code(name)
+    if code is None:
         raise BoardError(f"parameter 'board.dictionary': unknown dictionary {name!r}; "
-                         f"use one of {', '.join(known)}")
+                         f"use one of {', '.join(predefined_names())}")
     return cv2.aruco.getPredefinedDictionary(code)
 
 

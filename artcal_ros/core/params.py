@@ -19,6 +19,7 @@ import yaml
 
 from artcal_ros.core.boards import BUILT_TYPES, PLANNED_TYPES
 from artcal_ros.core.boards.aprilgrid import aprilgrid_complaint
+from artcal_ros.core.boards.dictionaries import predefined_code, predefined_names
 from artcal_ros.core.camera import MODELS
 from artcal_ros.core.errors import ParameterError
 
@@ -58,14 +59,11 @@ def _board_type(value: Any) -> str | None:
 
 
 def _dictionary(value: Any) -> str | None:
-    import cv2
-
     if str(value) == "tag36h11":  # an aprilgrid's (Kalibr's name)
         return None
-    if str(value).startswith("DICT_") and isinstance(getattr(cv2.aruco, str(value), None), int):
+    if predefined_code(str(value)) is not None:
         return None
-    names = sorted(n for n in dir(cv2.aruco) if n.startswith("DICT_"))
-    return f"is not an OpenCV predefined dictionary; allowed: {', '.join(names)}"
+    return f"is not an OpenCV predefined dictionary; allowed: {', '.join(predefined_names())}"
 
 
 def length_complaint(value_m: float) -> str | None:
