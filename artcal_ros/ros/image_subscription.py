@@ -154,7 +154,7 @@ class ImageSubscription:
         self._group = callback_group
         self._on_change = on_change
         self._on_incompatible = on_incompatible
-        self._lock = threading.RLock()
+        self._lock = threading.Lock()  # a refresh from a timer and one from an event
         self._subscription: Subscription[Any] | None = None
         self.gaps = SequenceGaps()
         self.choice = choose_qos(mode, self._publishers())
