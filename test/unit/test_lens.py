@@ -90,3 +90,34 @@ def test_plausible_division_lenses() -> None:
     assert _plausible(np.array([1.15, -0.855, -0.014]), centre, scale, 0.1, use,
                       inside) is None
     assert _plausible(np.array([np.nan, 0.0, 0.0]), centre, scale, 0.1, use, inside) is None
+
+
+def test_lens_pool_restore_withdraws_a_frames_evidence() -> None:
+    """A frame pooled after a snapshot and then withdrawn by restore leaves the pool as the
+    snapshot found it: fitting that frame again gives the very same lens."""
+    from artcal_ros.core.detect.edges import refine_quads
+    from artcal_ros.core.detect.lens import LensPool
+
+    board = Board()
+    cam = Camera.preset("webcam")
+    rng = np.random.default_rng(3)
+    pool = LensPool()
+
+    def pooled_lens(rvec: np.ndarray, tvec: np.ndarray) -> tuple[float, float, float]:
+        view = render_view(board, cam, rvec, tvec, photometry=Photometry.exact(), rng=rng)
+        quads = view.corners_px[view.inside]
+        fit = refine_quads(view.image / 255.0, quads, np.ones(len(quads), bool), board.bits,
+                           curve_min_px=20.0, lens_pool=pool)
+        assert isinstance(fit.lens, DivisionLens)
+        return fit.lens.lam, fit.lens.lam2, fit.lens.lam3
+
+    first, second = random_poses(board, cam, 2, rng, partial_fraction=0.0)
+    pooled_lens(*first)
+    state = pool.snapshot()
+    info = pool.info.copy()
+    lens = pooled_lens(*second)
+    assert not np.array_equal(pool.info, info)          # the second frame joined the pool
+    np.testing.assert_array_equal(state.info, info)     # and the snapshot kept its moment
+    pool.restore(state)
+    np.testing.assert_array_equal(pool.info, info)
+    assert pooled_lens(*second) == lens

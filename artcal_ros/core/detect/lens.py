@@ -247,3 +247,22 @@ class LensPool:
         self.info = np.zeros((3, 3))
         self.info_theta = np.zeros(3)
         self.shape = shape
+
+    def snapshot(self) -> LensPoolState:
+        """The pooled evidence as it stands, for :meth:`restore`."""
+        return LensPoolState(self.info.copy(), self.info_theta.copy(), self.shape)
+
+    def restore(self, state: LensPoolState) -> None:
+        """Go back to a :meth:`snapshot` (a frame's evidence withdrawn to be fitted again)."""
+        self.info = state.info.copy()
+        self.info_theta = state.info_theta.copy()
+        self.shape = state.shape
+
+
+@dataclass(frozen=True)
+class LensPoolState:
+    """A :class:`LensPool`'s evidence at one moment (copies; see :meth:`LensPool.snapshot`)."""
+
+    info: np.ndarray
+    info_theta: np.ndarray
+    shape: tuple[int, ...]
