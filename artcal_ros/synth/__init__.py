@@ -3,7 +3,7 @@
 Used by the tests, the demo and the benchmarks::
 
     from artcal_ros.synth import Camera, Photometry, random_poses, render_view
-    cam = Camera.preset("webcam")             # webcam | hd | wide | fisheye
+    cam = Camera.preset("webcam")             # webcam | hd | wide | lowcost | fisheye
     rng = np.random.default_rng(1)
     for rvec, tvec in random_poses(board, cam, 20, rng, partial_fraction=0.3):
         view = render_view(board, cam, rvec, tvec, photometry=Photometry.clean(), rng=rng)

@@ -26,6 +26,9 @@ _PRESETS: dict[str, tuple[str, tuple[int, int], float, float, float, float, tupl
     # a wide-angle 1280x800 lens: strong radial distortion that needs k3
     "wide": ("plumb_bob", (1280, 800), 700.0, 700.8, 641.9, 402.3,
              (-0.28, 0.09, 0.0006, 0.0004, -0.012)),
+    # a low-cost 320x240 camera (the paper's smallest): a short lens with marked barrel
+    "lowcost": ("plumb_bob", (320, 240), 290.0, 291.2, 158.6, 122.3,
+                (-0.25, 0.09, 0.0010, 0.0007, 0.0)),
     # an equidistant fisheye (cv2.fisheye model), about 170 degrees across the diagonal
     "fisheye": ("equidistant", (1024, 768), 350.0, 350.4, 514.1, 381.6,
                 (0.04, -0.012, 0.003, -0.0004)),
@@ -42,7 +45,7 @@ class Camera(CameraModel):
 
     @classmethod
     def preset(cls, name: str) -> Camera:
-        """One of the named cameras :data:`PRESETS` (webcam, hd, wide, fisheye)."""
+        """One of the named cameras :data:`PRESETS` (webcam, hd, wide, lowcost, fisheye)."""
         if name not in _PRESETS:
             raise ParameterError(f"unknown camera preset {name!r}; "
                                  f"use one of {', '.join(PRESETS)}")
