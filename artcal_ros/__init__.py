@@ -2,7 +2,7 @@
 
 The Python API::
 
-    from artcal_ros import Board, Detector, calibrate, detect, load_params
+    from artcal_ros import Board, Detector, calibrate, calibrate_rig, detect, load_params
 """
 
 from __future__ import annotations
@@ -30,6 +30,7 @@ __all__ = [
     "ImageFormatError",
     "ParameterError",
     "calibrate",
+    "calibrate_rig",
     "detect",
     "load_params",
 ]
@@ -49,4 +50,8 @@ def __getattr__(name: str) -> Any:
         from artcal_ros.core.calibrate import calibrate
 
         return calibrate
+    if name == "calibrate_rig":
+        from artcal_ros.core.calibrate.rig import calibrate_rig
+
+        return calibrate_rig
     raise AttributeError(name)

@@ -5,17 +5,176 @@
     rig = calibrate_rig({"left": [dets, ...], "right": [dets, ...]}, board,
                         image_sizes={"left": (w, h), "right": (w, h)})
     R, t = rig.extrinsics["left", "right"]   # x_right = R @ x_left + t, metres
+
+The pipeline: each camera calibrated alone (:func:`~.pipeline.calibrate`, or its given
+intrinsics) -> each camera's board pose in every frame where it measures the board ->
+connectivity through shared frames (a camera cut off is an error that says what to show)
+-> extrinsics started from the robust median of the relative poses -> joint bundle
+adjustment of every intrinsic, extrinsic and frame pose (:mod:`.rig_solve`) -> outlier
+points and observations dropped, weights re-scaled to the residuals, solved again ->
+covariance of the extrinsics, rectification of consecutive pairs (:mod:`.rectify`).
 """
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable, Mapping, Sequence
 
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.calibrate.rig_result import RigResult
+from artcal_ros.core.calibrate.lm import reweighted
+from artcal_ros.core.calibrate.model import (
+    MODELS,
+    SolveOptions,
+    ViewPoints,
+    estimate_pose,
+    free_parameters,
+)
+from artcal_ros.core.calibrate.pipeline import calibrate
+from artcal_ros.core.calibrate.rectify import rectify_pair
+from artcal_ros.core.calibrate.result import CalibrationResult, DroppedView
+from artcal_ros.core.calibrate.rig_cameras import camera_result, epipolar_correspondences
+from artcal_ros.core.calibrate.rig_result import RigPair, RigResult
+from artcal_ros.core.calibrate.rig_solve import (
+    RigCamera,
+    RigObservation,
+    RigSolution,
+    pair_std_devs,
+    pair_transform,
+    rig_bundle_adjust,
+)
+from artcal_ros.core.calibrate.rig_start import (
+    connectivity_problem,
+    initial_board_poses,
+    initial_extrinsics,
+    shared_frame_counts,
+    spanning_tree,
+)
+from artcal_ros.core.calibrate.views import POINTS_MODES, lens_corrected_centers, view_points
+from artcal_ros.core.camera import CameraModel
 from artcal_ros.core.detections import Detections
+from artcal_ros.core.errors import CalibrationError, ParameterError
+
+MIN_RIG_FEATURES = 4  # markers (or points) of one camera in one frame that join the solve
+OUTLIER_SIGMAS = 5.0  # as the single-camera pipeline: a point this many robust sigmas off
+OUTLIER_FLOOR_PX = 0.5  # ... and at least this far is an outlier
+OBSERVATION_OUTLIER_FACTOR = 3.0  # an observation whose RMS is this many times the median's
+REWEIGHT_ROUNDS = 2
+WEAK_PAIR_FRAMES = 5  # a connecting pair with fewer shared frames gets a warning
+
+
+def _observation_problem(view: ViewPoints, board: Board) -> str | None:
+    """Why one camera's points in one frame cannot join the rig solve, or None."""
+    ids = np.unique(view.marker_ids)
+    what = "points" if board.has_points else "markers"
+    if len(ids) < MIN_RIG_FEATURES:
+        return f"{len(ids)} {what}, needs at least {MIN_RIG_FEATURES}"
+    rc = board.feature_cells(ids)
+    if len(np.unique(rc[:, 0])) < 2 or len(np.unique(rc[:, 1])) < 2:
+        return f"its {what} lie on one line of the board"
+    return None
+
+
+def _check_inputs(detections: Mapping[str, Sequence[Detections | None]],
+                  image_sizes: Mapping[str, tuple[int, int]],
+                  model: str | Mapping[str, str], points: str,
+                  fixed: Mapping[str, tuple[np.ndarray, np.ndarray]]) -> dict[str, str]:
+    """Refuse bad arguments with a message naming them; returns each camera's model."""
+    names = list(detections)
+    if len(names) < 2:
+        raise ParameterError(f"a rig needs two or more cameras; got {len(names)} ({names})")
+    counts = {n: len(detections[n]) for n in names}
+    if len(set(counts.values())) != 1:
+        listed = ", ".join(f"{n} {c}" for n, c in counts.items())
+        raise CalibrationError(f"the cameras have different numbers of frames ({listed}); "
+                               "a rig frame is one image of every camera at the same instant")
+    for what, given in (("image_sizes", image_sizes), ("fixed_intrinsics", fixed)):
+        unknown = [n for n in given if n not in counts]
+        if unknown:
+            raise ParameterError(f"{what} names camera(s) {', '.join(unknown)} not among the "
+                                 f"rig's cameras ({', '.join(names)})")
+    missing = [n for n in names if n not in image_sizes]
+    if missing:
+        raise ParameterError(f"image_sizes lacks camera(s) {', '.join(missing)}")
+    models = {n: model if isinstance(model, str) else model.get(n, "") for n in names}
+    for n, m in models.items():
+        if m not in MODELS:
+            raise ParameterError(f"camera {n}: camera model {m!r} is not one of "
+                                 f"{', '.join(MODELS)}")
+    if points not in POINTS_MODES:
+        raise ParameterError(f"points {points!r} is not one of {', '.join(POINTS_MODES)}")
+    return models
+
+
+def _fixed_camera(name: str, model: str, size: tuple[int, int],
+                  given: tuple[np.ndarray, np.ndarray]) -> CameraModel:
+    K, dist = given
+    try:
+        return CameraModel(model, np.asarray(K, np.float64), np.asarray(dist, np.float64),
+                           size)
+    except ParameterError as e:
+        raise ParameterError(f"fixed_intrinsics of camera {name}: {e}") from None
+
+
+def _select_frames(frames_seen: dict[int, int], max_frames: int) -> list[int]:
+    """The frames to solve: those most cameras see first, evenly spread over the
+    recording within each count; at most ``max_frames``."""
+    chosen: list[int] = []
+    for count in sorted(set(frames_seen.values()), reverse=True):
+        group = sorted(f for f, c in frames_seen.items() if c == count)
+        room = max_frames - len(chosen)
+        if room <= 0:
+            break
+        if len(group) > room:
+            group = [group[int(k)] for k in np.linspace(0, len(group) - 1, room).round()]
+        chosen += group
+    return sorted(set(chosen))
+
+
+def _reject(obs: list[RigObservation], res: Sequence[np.ndarray], board: Board,
+            names: Sequence[str], dropped: dict[str, list[DroppedView]],
+            outliers: dict[str, list[np.ndarray]]) -> tuple[list[RigObservation], int]:
+    """One round of outlier rejection: whole observations, then single points."""
+    norms = [np.linalg.norm(r, axis=1) for r in res]
+    sigma = float(np.median(np.concatenate(norms))) / 1.1774  # Rayleigh median
+    thr = max(OUTLIER_SIGMAS * sigma, OUTLIER_FLOOR_PX)
+    rms = np.array([float(np.sqrt(np.mean(n[n <= thr] ** 2))) if (n <= thr).any()
+                    else float(np.sqrt(np.mean(n ** 2))) for n in norms])
+    med = float(np.median(rms))
+    bad = rms > max(OBSERVATION_OUTLIER_FACTOR * med, OUTLIER_FLOOR_PX)
+    kept: list[RigObservation] = []
+    removed = 0
+    for o, n, b, e in zip(obs, norms, bad, rms, strict=True):
+        name = names[o.camera]
+        if b and bad.sum() <= max(1, len(obs) // 10):
+            dropped[name].append(DroppedView(o.view.index, o.view.source,
+                                             f"outlier view: RMS {e:.2f} px vs median "
+                                             f"{med:.2f} px"))
+            continue
+        good = n <= thr
+        if good.all():
+            kept.append(o)
+            continue
+        sub = o.view.subset(good)
+        outliers[name].append(o.view.image_points[~good])
+        problem = _observation_problem(sub, board)
+        if problem is not None:
+            dropped[name].append(DroppedView(o.view.index, o.view.source,
+                                             f"after removing outlier points: {problem}"))
+            continue
+        removed += int((~good).sum())
+        kept.append(RigObservation(o.camera, o.frame, sub))
+    return kept, removed
+
+
+def _renumber(obs: list[RigObservation], poses: np.ndarray,
+              frames: list[int]) -> tuple[list[RigObservation], np.ndarray, list[int]]:
+    """Drop frames no observation refers to any more."""
+    used = sorted({o.frame for o in obs})
+    at = {f: k for k, f in enumerate(used)}
+    return ([RigObservation(o.camera, at[o.frame], o.view) for o in obs], poses[used],
+            [frames[f] for f in used])
 
 
 def calibrate_rig(detections: Mapping[str, Sequence[Detections | None]], board: Board, *,
@@ -26,5 +185,197 @@ def calibrate_rig(detections: Mapping[str, Sequence[Detections | None]], board: 
                   fix_aspect_ratio: bool = False, zero_tangent_dist: bool = False,
                   max_frames: int = 60, weighted: bool = True,
                   progress: Callable[[str], None] | None = None) -> RigResult:
-    """Calibrate a rig of cameras from synchronised detections (not yet implemented)."""
-    raise NotImplementedError
+    """Calibrate a rig of cameras from synchronised detections.
+
+    Args:
+        detections: camera name -> one entry per rig frame (the same index is the same
+            instant in every camera; None or an empty Detections where the camera saw
+            nothing). The first camera is the reference.
+        board: the board all cameras see.
+        image_sizes: camera name -> (width, height), pixels.
+        model: the lens model of every camera, or camera name -> model.
+        points: ``centers`` or ``corners`` (as :func:`~.pipeline.calibrate`).
+        fixed_intrinsics: camera name -> (K (3, 3), dist (n,)) held fixed (the
+            ``calibrate.fix_intrinsics`` parameter gives every camera's); the others are
+            calibrated.
+        k_coefficients, fix_principal_point, fix_aspect_ratio, zero_tangent_dist: what each
+            calibrated camera holds (as :func:`~.pipeline.calibrate`).
+        max_frames: at most this many rig frames in the joint solve (those most cameras
+            see first).
+        weighted: weight points by the detector's sigmas, re-scaled to the residuals.
+        progress: called with a short message at each stage.
+
+    Raises:
+        CalibrationError: a camera cannot be calibrated, or is not connected to the
+            others through shared frames (the message names it, the shared frames of
+            each pair and what to show).
+        ParameterError: a bad argument (named).
+    """
+    start = time.monotonic()
+    say = progress or (lambda _msg: None)
+    fixed = dict(fixed_intrinsics or {})
+    models = _check_inputs(detections, image_sizes, model, points, fixed)
+    names = tuple(detections)
+    sizes = {n: (int(image_sizes[n][0]), int(image_sizes[n][1])) for n in names}
+    options = SolveOptions(int(k_coefficients), bool(fix_principal_point),
+                           bool(fix_aspect_ratio), bool(zero_tangent_dist))
+    n_frames = len(detections[names[0]])
+    dets = {n: [d if d is not None else Detections.empty(sizes[n]) for d in detections[n]]
+            for n in names}
+
+    # Step 1. Each camera alone: its intrinsics (or the given ones).
+    single: dict[str, CalibrationResult | None] = {}
+    cams: dict[str, CameraModel] = {}
+    for n in names:
+        if n in fixed:
+            cams[n], single[n] = _fixed_camera(n, models[n], sizes[n], fixed[n]), None
+            continue
+        say(f"calibrating camera {n} alone")
+        try:
+            res = calibrate(dets[n], board, image_size=sizes[n], model=models[n], points=points,
+                            k_coefficients=options.k_coefficients,
+                            fix_principal_point=options.fix_principal_point,
+                            fix_aspect_ratio=options.fix_aspect_ratio,
+                            zero_tangent_dist=options.zero_tangent_dist, weighted=weighted)
+        except CalibrationError as e:
+            raise CalibrationError(f"camera {n}: {e}") from None
+        cams[n], single[n] = res.camera, res
+
+    # Step 2. Each camera's points and board pose in every frame it measures the board.
+    dropped: dict[str, list[DroppedView]] = {n: [] for n in names}
+    views: dict[str, dict[int, ViewPoints]] = {n: {} for n in names}
+    poses: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]] = {n: {} for n in names}
+    for n in names:
+        cam = cams[n]
+        for f, det in enumerate(dets[n]):
+            if len(det) == 0 and len(det.point_ids) == 0:
+                continue
+            v = view_points(det, board, points, f)
+            problem = _observation_problem(v, board)
+            if problem is None and points == "centers":
+                v = lens_corrected_centers(v, cam)
+            if problem is None:
+                try:
+                    poses[n][f] = estimate_pose(v, cam.K, cam.dist, cam.model)
+                except CalibrationError:
+                    problem = "no board pose found"
+            if problem is None:
+                views[n][f] = v
+            else:
+                dropped[n].append(DroppedView(f, det.source, problem))
+
+    # Step 3. Connectivity, the frames to solve and the start.
+    shared = shared_frame_counts(names, {n: set(views[n]) for n in names})
+    problem = connectivity_problem(names, shared)
+    if problem is not None:
+        raise CalibrationError(problem)
+    tree = spanning_tree(names, shared)
+    seen_by = {f: sum(f in views[n] for n in names) for f in range(n_frames)}
+    frames = _select_frames({f: c for f, c in seen_by.items() if c > 0}, max_frames)
+    for f in set(range(n_frames)) - set(frames):
+        for n in names:
+            if f in views[n]:
+                dropped[n].append(DroppedView(f, views[n][f].source,
+                                              "not selected (max_frames reached)"))
+    say(f"starting the rig solve from {len(frames)} frames")
+    ext0 = initial_extrinsics(names, tree, poses)
+    pose0 = initial_board_poses(names, frames, ext0, poses,
+                                {n: {f: len(v) for f, v in views[n].items()} for n in names})
+    obs = [RigObservation(k, i, views[n][f]) for i, f in enumerate(frames)
+           for k, n in enumerate(names) if f in views[n]]
+    rig_cams = [RigCamera(cams[n].model, cams[n].K, cams[n].dist,
+                          () if n in fixed else free_parameters(cams[n].model, options=options))
+                for n in names]
+    weighted = weighted and any(o.view.sigma_px is not None
+                                and np.isfinite(o.view.sigma_px).any() for o in obs)
+
+    # Step 4. Joint bundle adjustment, outliers out, weights re-scaled.
+    say(f"joint bundle adjustment of {len(names)} cameras over {len(frames)} frames")
+    sol = rig_bundle_adjust(obs, rig_cams, ext0, pose0, weighted=weighted)
+    if points == "centers":
+        obs = [RigObservation(o.camera, o.frame, lens_corrected_centers(
+            o.view, _camera_of(sol, o.camera, sizes[names[o.camera]]))) for o in obs]
+        sol = _again(obs, sol, weighted)
+    outliers: dict[str, list[np.ndarray]] = {n: [] for n in names}
+    points_dropped = 0
+    for _round in range(8):
+        kept, removed = _reject(obs, sol.residuals, board, names, dropped, outliers)
+        if len(kept) == len(obs) and removed == 0:
+            break
+        points_dropped += removed
+        obs, poses_kept, frames = _renumber(kept, sol.poses, frames)
+        problem = connectivity_problem(names, shared_frame_counts(
+            names, {n: {frames[o.frame] for o in obs if o.camera == k}
+                    for k, n in enumerate(names)}))
+        if problem is not None:
+            raise CalibrationError(f"after dropping outliers: {problem}")
+        sol = rig_bundle_adjust(obs, list(sol.cameras), sol.extrinsics, poses_kept,
+                                weighted=weighted)
+    if weighted:
+        measured = obs
+        for _round in range(REWEIGHT_ROUNDS):
+            re = reweighted([o.view for o in measured], list(sol.residuals))
+            obs = [RigObservation(o.camera, o.frame, v) for o, v in zip(measured, re,
+                                                                       strict=True)]
+            sol = _again(obs, sol, True)
+
+    # Step 5. Results: cameras, pairs with their uncertainty, rectification.
+    say("extrinsics' uncertainty and rectification")
+    return _result(names, sizes, points, board, fixed, single, sol, obs, frames, dropped,
+                   outliers, points_dropped, tree, time.monotonic() - start)
+
+
+def _camera_of(sol: RigSolution, k: int, size: tuple[int, int]) -> CameraModel:
+    c = sol.cameras[k]
+    return CameraModel(c.model, c.K, c.dist, size)
+
+
+def _again(obs: list[RigObservation], sol: RigSolution, weighted: bool) -> RigSolution:
+    return rig_bundle_adjust(obs, list(sol.cameras), sol.extrinsics, sol.poses,
+                             weighted=weighted)
+
+
+def _result(names: tuple[str, ...], sizes: dict[str, tuple[int, int]], points: str,
+            board: Board, fixed: Mapping[str, object],
+            single: Mapping[str, CalibrationResult | None], sol: RigSolution,
+            obs: list[RigObservation], frames: list[int],
+            dropped: dict[str, list[DroppedView]], outliers: dict[str, list[np.ndarray]],
+            points_dropped: int, tree: Sequence[tuple[str, str]],
+            elapsed_s: float) -> RigResult:
+    cameras = {n: camera_result(k, sizes[n], points, sol, obs, frames, single[n],
+                                dropped[n], outliers[n], board)
+               for k, n in enumerate(names)}
+    seen = {n: {frames[o.frame] for o in obs if o.camera == k} for k, n in enumerate(names)}
+    shared = shared_frame_counts(names, seen)
+    extrinsics: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
+    pairs: dict[tuple[str, str], RigPair] = {}
+    for a_k, a in enumerate(names):
+        for b_k, b in enumerate(names):
+            if a == b:
+                continue
+            R, t = pair_transform(sol.extrinsics, a_k, b_k)
+            rot_std, t_std, base_std = pair_std_devs(sol, a_k, b_k)
+            extrinsics[a, b] = (R, t)
+            pairs[a, b] = RigPair(a, b, R, t, float(np.linalg.norm(t)), base_std, rot_std,
+                                  t_std, len(seen[a] & seen[b]))
+    rectification = {}
+    for k in range(len(names) - 1):
+        a, b = names[k], names[k + 1]
+        pa, pb = epipolar_correspondences(obs, k, k + 1)
+        R, t = extrinsics[a, b]
+        rectification[a, b] = rectify_pair(a, b, cameras[a].camera, cameras[b].camera, R, t,
+                                           pa, pb)
+    warnings = [f"cameras {a} and {b} share only {shared.get((a, b), shared.get((b, a), 0))} "
+                f"frames: hold the board where both see part of it in a few more"
+                for a, b in tree if len(seen[a] & seen[b]) < WEAK_PAIR_FRAMES]
+    res_all = np.concatenate([r for r in sol.residuals])
+    all_dropped = sorted({(d.view_index, d.source, f"{n}: {d.reason}")
+                          for n in names for d in dropped[n]})
+    return RigResult(
+        names=names, cameras=cameras, extrinsics=extrinsics, pairs=pairs, shared_frames=shared,
+        rectification=rectification, frames_used=tuple(frames),
+        frames_dropped=tuple(DroppedView(*d) for d in all_dropped),
+        board_rvecs=sol.poses[:, :3].copy(), board_tvecs=sol.poses[:, 3:].copy(),
+        reprojection_rms_px=float(np.sqrt(np.mean(np.sum(res_all ** 2, axis=1)))),
+        points_dropped=points_dropped, fixed_intrinsics=len(fixed) == len(names),
+        solve_time_s=elapsed_s, warnings=tuple(warnings))
