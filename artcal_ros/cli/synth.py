@@ -3,12 +3,19 @@
     artcal synth --params config/calibrator.yaml --camera webcam --frames 20 --out /tmp/frames
     artcal synth --camera hd --frames 60 --out /tmp/run1 --bag --motion smooth --rate 10
     artcal synth --camera fisheye --frames 5 --out /tmp/f --photometry harsh --encoding bgr8
+    artcal synth --camera webcam --frames 16 --out /tmp/st --rig stereo       # DIR/left, DIR/right
+    artcal synth --rig stereo --frames 60 --out /tmp/stbag --bag --rate 15 --jitter-ms 5
 
 Without ``--bag``: DIR/frame_0000.png ... and DIR/truth.json. With ``--bag``: DIR is a
 rosbag2 directory (metadata.yaml + .mcap) of sensor_msgs/Image on ``--topic``, with
 DIR/truth.json beside the recording (frames keyed by their stamp). The truth format
-is described in :mod:`artcal_ros.synth.truth`. This module only parses the arguments; the
-rendering and writing is :func:`artcal_ros.synth.dataset.write_dataset`.
+is described in :mod:`artcal_ros.synth.truth`. With ``--rig stereo|trio``: synchronised
+cameras of known extrinsics (:mod:`artcal_ros.synth.rig`), DIR/<camera>/ holding each
+camera's frames under the same file names, or one bag with a topic ``/<camera>/image_raw``
+per camera; DIR/truth.json the truth of all (:mod:`artcal_ros.synth.rig_truth`). This module
+only parses the arguments; the rendering and writing is
+:func:`artcal_ros.synth.dataset.write_dataset` (:func:`artcal_ros.synth.rig_dataset.
+write_rig_dataset` for a rig).
 """
 
 from __future__ import annotations
@@ -25,6 +32,8 @@ from artcal_ros.core.board import Board
 from artcal_ros.core.errors import ParameterError
 from artcal_ros.synth import ENCODINGS, PRESETS, Camera
 from artcal_ros.synth.dataset import PHOTOMETRIES, write_dataset
+from artcal_ros.synth.rig import RIGS, Rig
+from artcal_ros.synth.rig_dataset import rig_topic, write_rig_dataset
 
 
 def camera_from_arg(text: str) -> Camera:
@@ -85,8 +94,17 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--shutter", type=float, default=0.0, metavar="SECONDS",
                         help="with --motion smooth: exposure time; each frame is blurred by "
                              "the camera's motion while the shutter is open (default 0: off)")
-    parser.add_argument("--topic", default="/camera/image_raw",
-                        help="image topic in the bag (default /camera/image_raw)")
+    parser.add_argument("--topic", default=None,
+                        help="image topic in the bag (default /camera/image_raw; a rig's "
+                             "are /<camera>/image_raw)")
+    parser.add_argument("--rig", choices=RIGS, default=None,
+                        help="synchronised cameras of known extrinsics, copies of --camera: "
+                             "stereo (left, right: 12 cm apart) or trio (cam0 cam1 cam2 fanned "
+                             "out, the outer two sharing no view); DIR/<camera>/ holds each "
+                             "camera's frames, DIR/truth.json the truth of all")
+    parser.add_argument("--jitter-ms", type=float, default=0.0, metavar="MS",
+                        help="with --rig and --bag: stamp each camera after the first up to "
+                             "MS milliseconds off the frame's time (default 0: identical)")
     parser.add_argument("--overwrite", action="store_true",
                         help="with --bag: replace an existing bag at DIR")
 
@@ -96,12 +114,17 @@ def run(args: argparse.Namespace) -> int:
     _keep_freed_memory()
     board = Board.from_params(params_from_args(args))
     cam = camera_from_arg(args.camera)
+    if args.rig:
+        return _run_rig(args, board, cam)
+    if args.jitter_ms:
+        raise ParameterError("--jitter-ms is for a rig's bag (--rig ... --bag)")
     bar: Progress[None] = Progress(total=args.frames, label="synth")
     start = time.monotonic()
     truth = write_dataset(board, cam, args.out, frames=args.frames, seed=args.seed,
                           photometry=args.photometry, encoding=args.encoding,
                           partial_fraction=args.partial_fraction, motion=args.motion,
-                          bag=args.bag, rate_hz=args.rate, topic=args.topic,
+                          bag=args.bag, rate_hz=args.rate,
+                          topic=args.topic or "/camera/image_raw",
                           shutter_s=args.shutter, overwrite=args.overwrite,
                           progress=bar.update)
     bar.close()
@@ -112,3 +135,28 @@ def run(args: argparse.Namespace) -> int:
           f"({seconds:.1f} s, {seconds / args.frames:.2f} s/frame)")
     return 0
 
+
+def _run_rig(args: argparse.Namespace, board: Board, cam: Camera) -> int:
+    """``--rig``: render every camera of the rig, write, and print a one-line summary."""
+    if args.topic is not None:
+        raise ParameterError(f"--topic {args.topic}: a rig's topics are /<camera>/image_raw; "
+                             "leave --topic out with --rig")
+    if args.jitter_ms and not args.bag:
+        raise ParameterError("--jitter-ms needs --bag (image folders have no stamps)")
+    rig = Rig.preset(args.rig, cam)
+    bar: Progress[None] = Progress(total=args.frames * len(rig.names), label="synth")
+    start = time.monotonic()
+    truth = write_rig_dataset(board, rig, args.out, frames=args.frames, seed=args.seed,
+                              photometry=args.photometry, encoding=args.encoding,
+                              partial_fraction=args.partial_fraction, motion=args.motion,
+                              bag=args.bag, rate_hz=args.rate, shutter_s=args.shutter,
+                              jitter_ms=args.jitter_ms, overwrite=args.overwrite,
+                              progress=bar.update)
+    bar.close()
+    seconds = time.monotonic() - start
+    where = (f"as one bag ({', '.join(rig_topic(n) for n in rig.names)})" if args.bag
+             else f"as PNGs in {', '.join(n + '/' for n in rig.names)}")
+    print(f"wrote {args.frames} frames of the {args.rig} rig ({', '.join(rig.names)}; "
+          f"{cam.width}x{cam.height} {Path(args.camera).name}, {args.encoding}) {where} in "
+          f"{args.out} and truth in {truth} ({seconds:.1f} s)")
+    return 0

@@ -93,7 +93,7 @@ def motion_blur_from_poses(board: Board, cam: Camera, poses: list[Pose], index: 
     return float(min(np.hypot(dx, dy), 100.0)), float(np.degrees(np.arctan2(dy, dx)))
 
 
-def _check_arguments(frames: int, photometry: str, encoding: str, motion: str, rate_hz: float,
+def check_arguments(frames: int, photometry: str, encoding: str, motion: str, rate_hz: float,
                      shutter_s: float) -> None:
     """ParameterError naming the first bad argument (by its ``artcal synth`` option)."""
     if photometry not in PHOTOMETRIES:
@@ -149,7 +149,7 @@ def write_dataset(board: Board, cam: Camera, out: str | Path, *, frames: int, se
         ParameterError: a bad argument, named by its ``artcal synth`` option.
         ArtcalError: the output cannot be written.
     """
-    _check_arguments(frames, photometry, encoding, motion, rate_hz, shutter_s)
+    check_arguments(frames, photometry, encoding, motion, rate_hz, shutter_s)
     out = Path(out)
     rng = np.random.default_rng(seed)
     make = smooth_poses if motion == "smooth" else random_poses

@@ -227,11 +227,26 @@ def smooth_poses(board: Board, cam: Camera, n: int, rng: np.random.Generator, *,
         return []
     n_keys = max(2, math.ceil((n - 1) / frames_per_key) + 1)
     keys = random_poses(board, cam, n_keys, rng, **kwargs)  # type: ignore[arg-type]
+    return ease_between(keys, n, frames_per_key=frames_per_key)
+
+
+def ease_between(keys: list[Pose], n: int, *, frames_per_key: int = 10) -> list[Pose]:
+    """``n`` poses T_x_board moved smoothly through the key poses, ``frames_per_key`` apart.
+
+    The origin of frame x (a camera, or a rig's reference) and its orientation are eased
+    (smoothstep) between consecutive keys, so motion starts and stops gently; at least two
+    keys are needed, and keys beyond the ``n`` frames are unused.
+    """
+    if n <= 0:
+        return []
+    if len(keys) < 2:
+        raise ParameterError(f"ease_between: need at least 2 key poses, got {len(keys)}")
+    n_keys = len(keys)
     centers, rots = [], []
     for rvec, tvec in keys:
-        R = cv2.Rodrigues(rvec.reshape(3, 1))[0]
-        rots.append(R.T)              # R_board_cam
-        centers.append(-R.T @ tvec)   # camera centre in the board frame
+        R = cv2.Rodrigues(np.asarray(rvec, np.float64).reshape(3, 1))[0]
+        rots.append(R.T)              # R_board_x
+        centers.append(-R.T @ np.asarray(tvec, np.float64).reshape(3))  # x's origin, board frame
     poses: list[Pose] = []
     for i in range(n):
         k, frac = divmod(i / frames_per_key, 1.0)

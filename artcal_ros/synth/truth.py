@@ -142,9 +142,14 @@ def write_truth(path: str | Path, camera: Camera, board: Board,
                 frames: Sequence[dict[str, Any]], *, photometry: dict[str, Any] | None = None,
                 seed: int | None = None) -> None:
     """Write ``truth.json`` atomically (frames: records from :func:`frame_record`)."""
+    write_json_atomic(path, {"camera": camera.to_dict(), "board": board_params(board),
+                             "photometry": photometry or {}, "seed": seed,
+                             "frames": list(frames)})
+
+
+def write_json_atomic(path: str | Path, doc: Any) -> None:
+    """Write ``doc`` as compact JSON to ``path`` atomically (a reader never sees a part)."""
     path = Path(path)
-    doc = {"camera": camera.to_dict(), "board": board_params(board),
-           "photometry": photometry or {}, "seed": seed, "frames": list(frames)}
     fd, tmp = tempfile.mkstemp(prefix=".truth-", suffix=".json", dir=path.parent or ".")
     try:
         with os.fdopen(fd, "w") as f:
@@ -159,6 +164,29 @@ def write_truth(path: str | Path, camera: Camera, board: Board,
         raise
 
 
+def truth_frame(rec: dict[str, Any]) -> TruthFrame:
+    """One frame record of a truth file (see :func:`frame_record`) as a :class:`TruthFrame`.
+
+    Raises:
+        ValueError, KeyError, TypeError, IndexError: the record is malformed.
+    """
+    ms = rec["markers"]
+    ps = rec.get("points", [])
+    return TruthFrame(
+        file=rec.get("file"),
+        stamp_ns=int(rec["stamp_ns"]) if "stamp_ns" in rec else None,
+        rvec=np.array(rec["rvec"], dtype=np.float64),
+        tvec=np.array(rec["tvec"], dtype=np.float64),
+        ids=np.array([m["id"] for m in ms], dtype=np.int64),
+        corners_px=np.array([m["corners"] for m in ms], dtype=np.float64).reshape(-1, 4, 2),
+        centers_px=np.array([m["center"] for m in ms], dtype=np.float64).reshape(-1, 2),
+        inside=np.array([m["inside"] for m in ms], dtype=bool),
+        side_px=np.array([m.get("side_px", np.nan) for m in ms], dtype=np.float64),
+        point_ids=np.array([p["id"] for p in ps], dtype=np.int64),
+        points_px=np.array([p["xy"] for p in ps], dtype=np.float64).reshape(-1, 2),
+        points_inside=np.array([p["inside"] for p in ps], dtype=bool))
+
+
 def load_truth(path: str | Path) -> Truth:
     """Read a ``truth.json`` written by ``artcal synth`` (ArtcalError if it is not one)."""
     path = Path(path)
@@ -166,24 +194,7 @@ def load_truth(path: str | Path) -> Truth:
         doc = json.loads(path.read_text())
         camera = Camera.from_dict(doc["camera"])
         board = Board.from_params(doc["board"])
-        frames = []
-        for rec in doc["frames"]:
-            ms = rec["markers"]
-            ps = rec.get("points", [])
-            frames.append(TruthFrame(
-                file=rec.get("file"),
-                stamp_ns=int(rec["stamp_ns"]) if "stamp_ns" in rec else None,
-                rvec=np.array(rec["rvec"], dtype=np.float64),
-                tvec=np.array(rec["tvec"], dtype=np.float64),
-                ids=np.array([m["id"] for m in ms], dtype=np.int64),
-                corners_px=np.array([m["corners"] for m in ms],
-                                    dtype=np.float64).reshape(-1, 4, 2),
-                centers_px=np.array([m["center"] for m in ms], dtype=np.float64).reshape(-1, 2),
-                inside=np.array([m["inside"] for m in ms], dtype=bool),
-                side_px=np.array([m.get("side_px", np.nan) for m in ms], dtype=np.float64),
-                point_ids=np.array([p["id"] for p in ps], dtype=np.int64),
-                points_px=np.array([p["xy"] for p in ps], dtype=np.float64).reshape(-1, 2),
-                points_inside=np.array([p["inside"] for p in ps], dtype=bool)))
+        frames = [truth_frame(rec) for rec in doc["frames"]]
     except OSError as e:
         raise ArtcalError(f"cannot read truth file {path}: {e.strerror}") from e
     except (ValueError, KeyError, TypeError, IndexError) as e:
