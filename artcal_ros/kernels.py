@@ -28,7 +28,7 @@ from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector, detect
 from artcal_ros.core.detect.sampling import bilinear
 from artcal_ros.core.detect.step_model import pixel_esf
-from artcal_ros.core.detect.tracking import MarkerTracker
+from artcal_ros.core.live.tracking import MarkerTracker
 from artcal_ros.synth.camera import Camera
 from artcal_ros.synth.photometry import Photometry
 from artcal_ros.synth.poses import random_poses

@@ -44,13 +44,13 @@ import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.compressed import compressed_to_gray, compressed_to_numpy
 from artcal_ros.core.images import (
     image_to_gray,
     image_to_numpy,
     numpy_to_image,
     to_gray,
 )
+from artcal_ros.core.images.compressed import compressed_to_gray, compressed_to_numpy
 from artcal_ros.synth import Camera, render_view
 from artcal_ros.synth.backdrop import Backdrop
 from artcal_ros.synth.poses import smooth_poses

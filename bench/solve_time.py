@@ -53,10 +53,10 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate import calibrate
 from artcal_ros.core.calibrate.quality import projection_difference
-from artcal_ros.core.calibrate.session import run_solve
-from artcal_ros.core.coverage import Readiness
+from artcal_ros.core.calibrate.solve_run import run_solve
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import CalibrationError
+from artcal_ros.core.live.coverage import Readiness
 from artcal_ros.core.params import load_params
 from artcal_ros.synth import PRESETS as ALL_PRESETS
 from artcal_ros.synth import Camera, marker_truth, random_poses

@@ -41,8 +41,8 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector, detect
-from artcal_ros.core.detect.tracking import MarkerTracker
 from artcal_ros.core.detections import Detections
+from artcal_ros.core.live.tracking import MarkerTracker
 from artcal_ros.synth import Camera, RenderedView, render_view
 from artcal_ros.synth.backdrop import Backdrop
 from artcal_ros.synth.poses import smooth_poses

@@ -26,8 +26,8 @@ from artcal_ros.cli.common import (
     params_from_args,
 )
 from artcal_ros.core.board import Board
-from artcal_ros.core.paper import PAGE_BORDER_MM, PAPERS
-from artcal_ros.core.printable import PageLayout, write_printable
+from artcal_ros.core.board.paper import PAGE_BORDER_MM, PAPERS
+from artcal_ros.core.board.printable import PageLayout, write_printable
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:

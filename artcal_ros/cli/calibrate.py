@@ -10,7 +10,7 @@
 
 The solve options are the parameters file's (``camera_model``, ``points``, ``max_views``,
 ``calibrate.*``), as for the calibrator node; the detection, solve, write and summary are
-the session path the node uses too (:mod:`artcal_ros.core.calibrate.session`).
+the solve run the node uses too (:mod:`artcal_ros.core.calibrate.solve_run`).
 
 The output starts with the verdict (good / usable / poor and why,
 :mod:`artcal_ros.core.calibrate.verdict`); a board found in under half of the images is said
@@ -53,7 +53,7 @@ from artcal_ros.cli.skipped import SkippedFrames, expand_image_paths, read_image
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate.board_check import check_board
 from artcal_ros.core.calibrate.diagnosis import BoardSearch
-from artcal_ros.core.calibrate.session import detect_views, session_summary, solve_session
+from artcal_ros.core.calibrate.solve_run import detect_views, solve_summary, solve_views
 from artcal_ros.core.detect import Detector, DetectorConfig
 from artcal_ros.core.errors import BagError, CalibrationError, ImageFormatError, ParameterError
 
@@ -128,8 +128,8 @@ def _bag_frames(bag: str, topic: str | None, max_frames: int, budget_s: float,
     ``warn`` is told where it broke.
     """
     from artcal_ros.bag import BagReader
-    from artcal_ros.core.compressed import compressed_to_numpy
     from artcal_ros.core.images import image_to_numpy
+    from artcal_ros.core.images.compressed import compressed_to_numpy
 
     start = time.monotonic()
     with BagReader(bag) as reader:
@@ -263,7 +263,7 @@ def run(args: argparse.Namespace) -> int:
     sample.kept.clear()
     tone = detector.tone
     try:
-        session = solve_session(dets, board, size, params, output=args.output,
+        run = solve_views(dets, board, size, params, output=args.output,
                                 max_views=args.max_views, accept_weak=args.accept_weak,
                                 progress=say)
     except CalibrationError as e:
@@ -275,17 +275,17 @@ def run(args: argparse.Namespace) -> int:
                                   "board_found": search.as_dict()})
             reason += f" (report written to {args.report})"
         raise CalibrationError(reason) from None
-    check = check_board([dets[i] for i in session.result.views_used], board,
-                        session.result.camera)
+    check = check_board([dets[i] for i in run.result.views_used], board,
+                        run.result.camera)
     if check.warning:
         warn(f"board check: {check.warning}")
     if args.report:
-        write_report(Path(args.report), session.result, dets, board,
+        write_report(Path(args.report), run.result, dets, board,
                      {"tone_curve": tone.as_dict(), "board_check": check.as_dict(),
                       "board_found": search.as_dict()})
-    # The session's time is the solve's; the user waited for the detection too.
-    text = session_summary(replace(session, seconds=time.monotonic() - start), long=True)
-    print(arrange_summary(text, search, session.result))
+    # The run's time is the solve's; the user waited for the detection too.
+    text = solve_summary(replace(run, seconds=time.monotonic() - start), long=True)
+    print(arrange_summary(text, search, run.result))
     if board.n_markers:  # the tone curve is estimated from marker edges, checked on markers
         print(f"tone curve: {tone.text()}")
     if board.board_type == "marker_grid":  # the only board the print check measures

@@ -5,9 +5,9 @@ from __future__ import annotations
 import argparse
 from typing import Any
 
-from artcal_ros.core.boards.dictionaries import predefined_code
+from artcal_ros.core.board.dictionaries import predefined_code
+from artcal_ros.core.board.kalibr_target import target_params
 from artcal_ros.core.errors import ParameterError
-from artcal_ros.core.kalibr_target import target_params
 from artcal_ros.core.params import ParamValue, length_complaint, load_params, parse_override
 
 # camera_calibration's --pattern values (its Patterns) and its board options, by dest name

@@ -17,9 +17,9 @@ from typing import Any
 
 import yaml
 
-from artcal_ros.core.boards import BUILT_TYPES, PLANNED_TYPES
-from artcal_ros.core.boards.aprilgrid import aprilgrid_complaint
-from artcal_ros.core.boards.dictionaries import predefined_code, predefined_names
+from artcal_ros.core.board.aprilgrid import aprilgrid_complaint
+from artcal_ros.core.board.dictionaries import predefined_code, predefined_names
+from artcal_ros.core.board.types import BUILT_TYPES, PLANNED_TYPES
 from artcal_ros.core.camera import MODELS
 from artcal_ros.core.errors import ParameterError
 

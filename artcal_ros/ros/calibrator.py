@@ -53,16 +53,16 @@ from sensor_msgs.srv import SetCameraInfo
 from std_srvs.srv import Trigger
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.board_mismatch import BoardMismatch
-from artcal_ros.core.broken_frames import broken_cause
 from artcal_ros.core.calibrate.board_check import check_board
-from artcal_ros.core.calibrate.session import SolveOutcome, busy_threads, run_solve
+from artcal_ros.core.calibrate.solve_run import SolveOutcome, busy_threads, run_solve
 from artcal_ros.core.camera_info import as_camera_info
-from artcal_ros.core.coverage import CoverageConfig, ViewCollector
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
-from artcal_ros.core.live import LiveDetection
-from artcal_ros.core.overlay import render_heat_map, render_overlay
+from artcal_ros.core.images.broken_frames import broken_cause
+from artcal_ros.core.live.board_mismatch import BoardMismatch
+from artcal_ros.core.live.coverage import CoverageConfig, ViewCollector
+from artcal_ros.core.live.overlay import render_heat_map, render_overlay
+from artcal_ros.core.live.stream import LiveDetection
 from artcal_ros.core.params import PARAMETERS, ParamValue
 from artcal_ros.ros import msgs
 from artcal_ros.ros.command_line import CommandHelp, from_specs, handle_arguments, init_ros
@@ -70,7 +70,7 @@ from artcal_ros.ros.diagnostics import Counters, diagnostic_array
 from artcal_ros.ros.image_subscription import ImageSubscription, QosChoice
 from artcal_ros.ros.latest import LatestWorker
 from artcal_ros.ros.parameters import check_update, declare_parameters
-from artcal_ros.ros.session import open_session
+from artcal_ros.ros.saved_session import open_session
 from artcal_ros.ros.signals import StopSignals, shut_down, spin_until_stopped
 from artcal_ros.ros.transport import use_large_shared_memory
 
@@ -167,8 +167,8 @@ class CalibratorNode(Node):
         self.get_logger().warning(text, throttle_duration_sec=10.0)
 
     def _process(self, msg: Image | CompressedImage) -> None:
-        from artcal_ros.core.compressed import compressed_to_numpy
         from artcal_ros.core.images import image_to_numpy
+        from artcal_ros.core.images.compressed import compressed_to_numpy
 
         if self._stopping.is_set():
             return  # shutting down: the node's entities may be gone

@@ -10,8 +10,8 @@ from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
 from std_msgs.msg import Header
 
-from artcal_ros.core.broken_frames import BrokenTally
-from artcal_ros.core.coverage import Readiness
+from artcal_ros.core.images.broken_frames import BrokenTally
+from artcal_ros.core.live.coverage import Readiness
 
 
 @dataclass(frozen=True)

@@ -15,7 +15,7 @@ from pathlib import Path
 
 import pytest
 
-from artcal_ros.core.calibrate.session_file import FILE_NAME, load_session
+from artcal_ros.core.live.saved_session import FILE_NAME, load_session
 from test.integration.ros_harness import ROOT
 
 pytestmark = pytest.mark.integration

@@ -20,7 +20,7 @@ from sensor_msgs.msg import Image
 from std_srvs.srv import Trigger
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.calibrate.session_file import FILE_NAME, SessionFileError, read_session
+from artcal_ros.core.live.saved_session import FILE_NAME, SessionFileError, read_session
 from test.integration.frames import CalibrationBag, image_messages
 from test.integration.qos import RELIABLE
 from test.integration.ros_harness import (

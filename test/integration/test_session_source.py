@@ -14,14 +14,14 @@ from pathlib import Path
 import pytest
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.calibrate.session_file import (
+from artcal_ros.core.live.saved_session import (
     FILE_NAME,
     SessionSource,
     load_session,
     write_session,
 )
 from test.integration.ros_harness import NodeProcess, calibrator_node, wait_until
-from test.unit.test_session_file import views
+from test.unit.test_saved_session import views
 
 pytestmark = pytest.mark.integration
 

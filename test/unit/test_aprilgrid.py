@@ -15,11 +15,11 @@ import yaml
 
 from artcal_ros import Board
 from artcal_ros.cli.main import main
+from artcal_ros.core.board.kalibr_target import target_params
+from artcal_ros.core.board.printable import board_to_png_px, write_printable
 from artcal_ros.core.detect import Detector
 from artcal_ros.core.errors import BoardError, ParameterError
-from artcal_ros.core.kalibr_target import target_params
 from artcal_ros.core.params import validate
-from artcal_ros.core.printable import board_to_png_px, write_printable
 from artcal_ros.synth import load_truth
 from artcal_ros.synth.camera import Camera
 from artcal_ros.synth.dataset import write_dataset
@@ -253,8 +253,8 @@ def test_bad_kalibr_target_files_say_what_is_wrong(tmp_path: Path, text: str,
 
 def test_overlay_draws_aprilgrid_detections() -> None:
     """(The live collection of aprilgrid views: test_boards_cli.py.)"""
-    from artcal_ros.core.coverage import CoverageConfig, ViewCollector
-    from artcal_ros.core.overlay import render_overlay
+    from artcal_ros.core.live.coverage import CoverageConfig, ViewCollector
+    from artcal_ros.core.live.overlay import render_overlay
 
     view = _views(6, 0.0, 3)[0]
     collector = ViewCollector(APRIL, CoverageConfig(min_views=2))

@@ -8,7 +8,7 @@ import numpy as np
 import pytest
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.board_mismatch import BoardMismatch
+from artcal_ros.core.live.board_mismatch import BoardMismatch
 from artcal_ros.synth import Camera, Photometry, random_poses, render_view
 
 CONFIGURED = Board()  # 19 x 9, DICT_6X6_1000, ids 0..170

@@ -15,10 +15,10 @@ import yaml
 
 from artcal_ros import Board
 from artcal_ros.cli.main import main
-from artcal_ros.core.coverage import CoverageConfig, ViewCollector
+from artcal_ros.core.board.printable import board_to_png_px, layout_page, write_printable
 from artcal_ros.core.detect import Detector
-from artcal_ros.core.live import LiveDetection
-from artcal_ros.core.printable import board_to_png_px, layout_page, write_printable
+from artcal_ros.core.live.coverage import CoverageConfig, ViewCollector
+from artcal_ros.core.live.stream import LiveDetection
 from artcal_ros.synth import load_truth
 from artcal_ros.synth.camera import Camera
 from artcal_ros.synth.dataset import write_dataset

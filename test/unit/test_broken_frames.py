@@ -6,9 +6,9 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from artcal_ros.core.broken_frames import BrokenTally, broken_cause
 from artcal_ros.core.errors import ImageFormatError
 from artcal_ros.core.images import image_to_numpy
+from artcal_ros.core.images.broken_frames import BrokenTally, broken_cause
 
 
 class Msg:

@@ -14,18 +14,18 @@ import pytest
 
 from artcal_ros import Board
 from artcal_ros.cli.main import main as artcal
-from artcal_ros.core.detect import Detector
-from artcal_ros.core.detect.circle_grid import find_circle_grid, orient_grid
-from artcal_ros.core.detect.image import to_gray8
-from artcal_ros.core.errors import BoardError, ParameterError
-from artcal_ros.core.params import validate
-from artcal_ros.core.printable import (
+from artcal_ros.core.board.printable import (
     board_to_png_px,
     layout_page,
     render_pdf,
     render_png,
     render_svg,
 )
+from artcal_ros.core.detect import Detector
+from artcal_ros.core.detect.circle_grid import find_circle_grid, orient_grid
+from artcal_ros.core.detect.image import to_gray8
+from artcal_ros.core.errors import BoardError, ParameterError
+from artcal_ros.core.params import validate
 from artcal_ros.synth.camera import Camera
 from artcal_ros.synth.photometry import Photometry
 from artcal_ros.synth.poses import random_poses

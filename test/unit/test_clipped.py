@@ -14,14 +14,14 @@ import pytest
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector, DetectorConfig
-from artcal_ros.core.detect.candidates import (
+from artcal_ros.core.detect.edge_shift import compensate_sides, toward_neighbourhood
+from artcal_ros.core.detect.exposure import (
     compressed_plateau,
     dark_level,
     is_clipped,
     saturates,
     saturation_image,
 )
-from artcal_ros.core.detect.edge_shift import compensate_sides, toward_neighbourhood
 from artcal_ros.core.detect.step_model import fit_step_model, pixel_esf
 from artcal_ros.synth import Camera, Photometry, RenderedView, random_poses, render_view
 

@@ -1,4 +1,4 @@
-"""Coverage, view novelty, tilt and readiness (core.coverage), and the overlay pictures,
+"""Coverage, view novelty, tilt and readiness (core.live.coverage), and the overlay pictures,
 on exact projections of a known board through a known pinhole camera; the node's readiness
 agrees with the solve's coverage warning; the collector under several threads at once."""
 
@@ -16,10 +16,10 @@ import pytest
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate import calibrate
-from artcal_ros.core.coverage import CoverageConfig, Snapshot, ViewCollector, empty_regions
 from artcal_ros.core.detections import Detections
-from artcal_ros.core.overlay import render_heat_map, render_overlay
-from artcal_ros.core.view_geometry import (
+from artcal_ros.core.live.coverage import CoverageConfig, Snapshot, ViewCollector, empty_regions
+from artcal_ros.core.live.overlay import render_heat_map, render_overlay
+from artcal_ros.core.live.view_geometry import (
     COVERAGE_GRID,
     MIN_COVERAGE,
     grid_cells,
@@ -258,7 +258,7 @@ def test_collector_under_concurrent_add_reset_and_queries() -> None:
 
 
 def test_solve_threads_are_forgotten_once_finished() -> None:
-    from artcal_ros.core.calibrate.session import SOLVE_THREADS, busy_threads
+    from artcal_ros.core.calibrate.solve_run import SOLVE_THREADS, busy_threads
 
     release = threading.Event()
     threads = [threading.Thread(target=release.wait, daemon=True) for _ in range(5)]

@@ -12,7 +12,6 @@ import cv2
 import numpy as np
 import pytest
 
-from artcal_ros.core.compressed import compressed_to_gray, compressed_to_numpy
 from artcal_ros.core.images import (
     ENCODINGS,
     ImageFormatError,
@@ -21,6 +20,7 @@ from artcal_ros.core.images import (
     numpy_to_image,
     to_gray,
 )
+from artcal_ros.core.images.compressed import compressed_to_gray, compressed_to_numpy
 
 # A colour with distinct channels, so swapped or mixed channels show.
 R, G, B = 200, 100, 30

@@ -16,9 +16,9 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from artcal_ros.core.compressed import compressed_to_gray, compressed_to_numpy
-from artcal_ros.core.compressed_header import compressed_size
 from artcal_ros.core.images import ENCODINGS, ImageFormatError, image_to_gray, image_to_numpy
+from artcal_ros.core.images.compressed import compressed_to_gray, compressed_to_numpy
+from artcal_ros.core.images.compressed_header import compressed_size
 
 
 def msg(height: Any = 4, width: Any = 4, encoding: Any = "mono8", step: Any = None,

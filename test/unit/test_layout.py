@@ -1,5 +1,5 @@
-"""The package's layout rules (docs: DESIGN.md, Layout) hold; the package metadata agrees with
-itself.
+"""The package's layout rules (docs/architecture.md, "What may import what") hold; the package
+metadata agrees with itself.
 
 - core/, synth/ and bag/ are ROS-free: no module in them (at any depth, in any function)
   imports rclpy or a ROS message package, and importing all of them loads none.
@@ -8,6 +8,8 @@ itself.
 - No import cycle anywhere in artcal_ros, and every import of artcal_ros names a module that
   exists.
 - No module is over MAX_LINES lines.
+- Inside core/detect/ the imports follow the layers its ``__init__`` docstring states: every
+  module in exactly one layer, and each imports only modules of later (lower) layers.
 
 Imports are read with :mod:`ast`, so every import counts: module level, inside functions and
 methods, relative, ``from package import submodule``, and ``importlib.import_module`` with a
@@ -311,6 +313,43 @@ def test_no_module_is_too_long() -> None:
     assert len(lengths) > 20
     too_long = {f: n for f, n in sorted(lengths.items()) if n > MAX_LINES}
     assert too_long == {}, f"modules over {MAX_LINES} lines: {too_long}"
+
+
+DETECT = "artcal_ros.core.detect"
+
+
+def stated_detect_layers() -> dict[str, int]:
+    """core/detect/__init__.py's layer table (lines ``<n>  module  module ...``): module ->
+    its layer number; fails if a module is listed twice."""
+    doc = ast.get_docstring(ast.parse(MODULES[DETECT].read_text())) or ""
+    layers: dict[str, int] = {}
+    for line in doc.splitlines():
+        words = line.split()
+        if len(words) > 1 and words[0].isdigit() and line.startswith("    "):
+            for word in words[1:]:
+                assert word not in layers, f"{word} is in two layers of {DETECT}'s docstring"
+                layers[word] = int(words[0])
+    return layers
+
+
+def test_detect_import_order_is_complete_and_kept() -> None:
+    """Every module of core/detect/ is in the stated layers, and each of its imports of
+    another (at any depth, in any function) goes down: to a module of a later layer."""
+    layers = stated_detect_layers()
+    modules = {name.removeprefix(DETECT + ".") for name in MODULES
+               if name.startswith(DETECT + ".")}
+    assert len(modules) > 20, "no detect modules seen?"
+    assert sorted(modules - set(layers)) == [], "detect modules missing from the stated order"
+    assert sorted(set(layers) - modules) == [], "stated order names modules that do not exist"
+    upward = []
+    for name in modules:
+        path = MODULES[f"{DETECT}.{name}"]
+        for imp in package_imports(path)[0]:
+            target = imp.target.removeprefix(DETECT + ".")
+            if not imp.implicit and target in layers and layers[target] <= layers[name]:
+                upward.append(f"{path.relative_to(ROOT)}:{imp.line}: {name} (layer "
+                              f"{layers[name]}) imports {target} (layer {layers[target]})")
+    assert sorted(upward) == []
 
 
 def test_package_xml_is_ament_python_format_3() -> None:

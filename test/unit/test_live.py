@@ -1,4 +1,4 @@
-"""The live stream's two tiers (core.detect.tracking, core.live) and the collector's held
+"""The live stream's two tiers (core.live.tracking, core.live.stream) and the collector's held
 views, on rendered hand-held sweeps whose every true corner is known."""
 
 from __future__ import annotations
@@ -11,11 +11,11 @@ import numpy as np
 import pytest
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.coverage import CoverageConfig, ViewCollector
 from artcal_ros.core.detect import Detector
-from artcal_ros.core.detect.tracking import MarkerTracker
 from artcal_ros.core.detections import Detections
-from artcal_ros.core.live import LiveConfig, LiveDetection
+from artcal_ros.core.live.coverage import CoverageConfig, ViewCollector
+from artcal_ros.core.live.stream import LiveConfig, LiveDetection
+from artcal_ros.core.live.tracking import MarkerTracker
 from artcal_ros.synth import Camera, Photometry, RenderedView, render_view, smooth_poses
 
 BOARD = Board()

@@ -20,7 +20,7 @@ import pytest
 
 from artcal_ros import Board
 from artcal_ros.cli import main as cli
-from artcal_ros.core.printable import PAGE_BORDER_MM, layout_page, write_printable
+from artcal_ros.core.board.printable import PAGE_BORDER_MM, layout_page, write_printable
 
 MIXED = Board(cols=4, rows=3, marker_length=0.04, marker_separation=0.02, first_id=100,
               polarity="mixed")

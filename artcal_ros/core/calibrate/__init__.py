@@ -1,7 +1,7 @@
 """Camera calibration from detections: views, models, solve, uncertainty, quality, report.
 
 :func:`calibrate` turns a list of :class:`~artcal_ros.core.detections.Detections` into a
-:class:`CalibrationResult`; :mod:`.session` is the collect -> select -> solve -> write path
+:class:`CalibrationResult`; :mod:`.solve_run` is the collect -> select -> solve -> write path
 the node and the CLI share.
 """
 

@@ -10,7 +10,7 @@ the board is found in under half of the images, on a few of those where it is no
   reports the whole grid of inner corners it sees; the sizes it names are then confirmed
   with the detector's own grid finder (:func:`~artcal_ros.core.detect.chessboard.find_grid`);
 - markers of another dictionary, or of the board's dictionary with ids not on the board
-  (:class:`~artcal_ros.core.board_mismatch.BoardMismatch`);
+  (:class:`~artcal_ros.core.live.board_mismatch.BoardMismatch`);
 - ChArUco: the markers' side over the square side, measured in the board plane (each
   marker's corners mapped through the homography of the marker centres, which sit at the
   square centres whatever the marker length), against the configured ratio.
@@ -32,11 +32,11 @@ import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.board_mismatch import BoardMismatch
 from artcal_ros.core.calibrate.views import view_points, view_problem
 from artcal_ros.core.detect.chessboard import find_grid
 from artcal_ros.core.detect.image import to_gray, to_gray8
 from artcal_ros.core.detections import Detections
+from artcal_ros.core.live.board_mismatch import BoardMismatch
 
 __all__ = ["MAX_IMAGES", "BoardSearch", "board_found", "board_name", "diagnose"]
 

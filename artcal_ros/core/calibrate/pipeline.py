@@ -57,7 +57,7 @@ from artcal_ros.core.calibrate.views import (
 )
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import CalibrationError
-from artcal_ros.core.view_geometry import COVERAGE_GRID, MIN_COVERAGE
+from artcal_ros.core.live.view_geometry import COVERAGE_GRID, MIN_COVERAGE
 
 __all__ = ["MODELS", "POINTS_MODES", "CalibrationResult", "DroppedView", "calibrate",
            "select_views"]
@@ -420,7 +420,7 @@ def _warnings(sol: Solution, size: tuple[int, int], views: Sequence[ViewPoints],
             out.append(f"{shown} is poorly determined (1-sigma {s:.3g}, moves the image by up to "
                        f"{e:.2f} px); add views tilted more steeply and with {term} in the "
                        "image corners")
-    # The node's readiness judges by the same grid and threshold (core.view_geometry): a
+    # The node's readiness judges by the same grid and threshold (core.live.view_geometry): a
     # collection it calls ready does not get this warning.
     if coverage < MIN_COVERAGE:
         out.append(f"points cover only {100 * coverage:.0f}% of the image "

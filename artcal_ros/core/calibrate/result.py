@@ -3,7 +3,7 @@ the JSON summary.
 
 :func:`summary_text` is the one formatter of a :class:`CalibrationResult`; the node's
 ``~/calibrate`` answer and log (short) and ``artcal calibrate``'s output (long) both come from
-it, through :func:`artcal_ros.core.calibrate.session.session_summary`, which adds the file
+it, through :func:`artcal_ros.core.calibrate.solve_run.solve_summary`, which adds the file
 written.
 """
 

@@ -23,15 +23,15 @@ from artcal_ros.core.errors import CalibrationError
 from artcal_ros.core.homography import neighbour_misfit
 
 # The view geometry (guessed camera, pose, coverage grid and threshold) is defined once, in
-# core.view_geometry, for the node's readiness and for the selection and checks here alike.
-from artcal_ros.core.view_geometry import (
+# core.live.view_geometry, for the node's readiness and for the selection and checks here alike.
+from artcal_ros.core.live.view_geometry import (
     COVERAGE_GRID,
     POINTS_MODES,
     ViewGeometry,
     grid_cells,
     point_correspondences,
 )
-from artcal_ros.core.view_geometry import view_geometry as one_view_geometry
+from artcal_ros.core.live.view_geometry import view_geometry as one_view_geometry
 
 MIN_MARKERS_PER_VIEW = 6  # enough for a homography plus redundancy to see distortion
 MIN_POINTS_PER_VIEW = 8   # the same for single points (chessboard, charuco corners)
@@ -151,7 +151,7 @@ def view_problem(view: ViewPoints, board: Board) -> str | None:
 
 @dataclass(frozen=True)
 class ViewsGeometry:
-    """The geometry of several views (:func:`artcal_ros.core.view_geometry.view_geometry` of
+    """The geometry of several views (:func:`artcal_ros.core.live.view_geometry.view_geometry` of
     each), stacked for selection and the degeneracy checks.
 
     Attributes:
@@ -170,7 +170,7 @@ class ViewsGeometry:
 def view_geometry(views: Sequence[ViewPoints], image_size: tuple[int, int],
                   camera_matrix: np.ndarray | None = None, *,
                   cache: GeometryCache | None = None) -> ViewsGeometry:
-    """Rough pose and coverage of each view (the one definition in core.view_geometry), stacked.
+    """Rough pose and coverage of each view (one definition: core.live.view_geometry), stacked.
 
     Args:
         views: the views.

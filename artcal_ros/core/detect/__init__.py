@@ -9,22 +9,26 @@ given or estimated by ``plumb``; side geometry in ``sides``; the pixels across
 the sides read by ``profiles``) -> ``verify`` -> ``centers``. All of them read
 pixels through ``sampling``; ``patterns`` holds what the board prints, ``lens``
 the lens models, ``tone`` the tone curve (estimated from the edge fits), ``edge_shift``
-the per-view edge shift removed from the corners. The hot loops are numba
+the per-view edge shift removed from the corners; ``exposure`` says whether a frame is
+clipped or partly saturated, and ``grid_search`` looks for the markers of a clipped frame
+where the board's layout puts them. The hot loops are numba
 kernels (compiled on first use and cached on disk); ``linalg`` has their small
 solves, ``workers`` the threads the model fit runs on (``ARTCAL_THREADS``, default 2).
 A chessboard goes to ``chessboard``
 (OpenCV's grid finders, ids from the squares' colours); a ChArUco board runs the marker
 pipeline, then ``charuco`` places its corners from the markers. An AprilGrid (Kalibr) runs the
 marker pipeline as it is: its board's dictionary sees each tag's 2-bit border as a 1-bit
-border around 8 x 8 code bits (:mod:`artcal_ros.core.boards.aprilgrid`). Both refine their corners
-with ``saddle``, a fit of the blurred X-corner model in linear light.
+border around 8 x 8 code bits (:mod:`artcal_ros.core.board.aprilgrid`). Both refine their
+corners with ``saddle``, a fit of the blurred X-corner model in linear light. Circle grids go
+to ``circles`` (``circle_grid`` finds, orders and checks the grid).
 
 Imports run one way, down these layers, never up or sideways (no cycles, also
-none inside functions)::
+none inside functions); every module of the package is in one layer, and
+test/unit/test_layout.py checks both::
 
     1  detector
-    2  candidates   chessboard   charuco
-    3  decode   edges   verify
+    2  candidates   grid_search   chessboard   charuco   circles
+    3  decode   edges   exposure   verify   circle_grid
     4  plumb    centers
     5  sides
     6  step_model   saddle   lens   image   patterns   profiles   tone   edge_shift

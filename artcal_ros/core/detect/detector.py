@@ -48,13 +48,7 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.camera import CameraModel, HasCamera
-from artcal_ros.core.detect.candidates import (
-    CandidateFinder,
-    censor_level,
-    dark_level,
-    is_clipped,
-    saturates,
-)
+from artcal_ros.core.detect.candidates import CandidateFinder
 from artcal_ros.core.detect.centers import diagonal_centers
 from artcal_ros.core.detect.charuco import charuco_corners
 from artcal_ros.core.detect.chessboard import detect_chessboard
@@ -66,6 +60,7 @@ from artcal_ros.core.detect.edge_shift import (
     toward_neighbourhood,
 )
 from artcal_ros.core.detect.edges import EdgeFit, ProbeFit, refine_quads, same_edges
+from artcal_ros.core.detect.exposure import censor_level, dark_level, is_clipped, saturates
 from artcal_ros.core.detect.grid_search import grow
 from artcal_ros.core.detect.image import to_gray, to_gray8
 from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool, known_lens
@@ -413,7 +408,7 @@ class Detector:
         censor_at: float | None = None
         corners: np.ndarray
         if self.config.refine_edges and len(ids):
-            lens_state = dict(vars(self._lens_pool))
+            lens_state = self._lens_pool.snapshot()
             probe = self._probe(curve) if probing else None
             censor_at = censor_level(curve, gray, gray8) if censor else None
             fit = self._refine(lin, quads, dark, ids, lens, probe, censor_at)
@@ -423,7 +418,7 @@ class Detector:
                 if differs(better, curve):
                     # this frame's edges again through the better curve (its lens
                     # evidence replaces, not joins, that of the first fit)
-                    vars(self._lens_pool).update(lens_state)
+                    self._lens_pool.restore(lens_state)
                     curve, lin = better, better.linearise(gray)
                     censor_at = censor_level(curve, gray, gray8) if censor else None
                     fit = self._refine(lin, quads, dark, ids, lens, None, censor_at)

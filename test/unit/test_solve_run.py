@@ -1,4 +1,4 @@
-"""The session path node and CLI share: the ``calibrate.*`` parameters (names, defaults, range
+"""The solve run node and CLI share: the ``calibrate.*`` parameters (names, defaults, range
 checks), their way into ``calibrate()``, the solve -> write -> summary path, the node's
 threaded solve, and ``artcal calibrate`` reading the same names from a file and ``--set``."""
 
@@ -15,16 +15,16 @@ import yaml
 from artcal_ros.cli.main import main
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate.quality import projection_difference
-from artcal_ros.core.calibrate.session import (
+from artcal_ros.core.calibrate.solve_run import (
     calibrate_kwargs,
     run_solve,
-    session_summary,
-    solve_session,
+    solve_summary,
+    solve_views,
 )
 from artcal_ros.core.camera_info import read_camera_info_yaml
-from artcal_ros.core.coverage import ViewCollector
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ParameterError
+from artcal_ros.core.live.coverage import ViewCollector
 from artcal_ros.core.params import load_params, validate
 from artcal_ros.synth import Camera, Photometry, random_poses, render_view
 from artcal_ros.synth.poses import marker_truth
@@ -84,25 +84,25 @@ def test_a_bad_flag_value_is_refused_naming_it() -> None:
         validate({"calibrate.fix_aspect_ratio": "sometimes"})
 
 
-# --- the session path ------------------------------------------------------------------------
-def test_solve_session_applies_the_options_writes_and_summarises(tmp_path: Path) -> None:
+# --- the solve run ---------------------------------------------------------------------------
+def test_solve_views_applies_the_options_writes_and_summarises(tmp_path: Path) -> None:
     cam = square_camera()
     views = noisy_views(cam, 12, seed=3)
     params = load_params(PARAMS, {"calibrate.fix_aspect_ratio": True,
                                   "calibrate.zero_tangent_dist": True, "camera_name": "cam7"})
-    session = solve_session(views, BOARD, cam.size, params, output=tmp_path / "c.yaml")
+    run = solve_views(views, BOARD, cam.size, params, output=tmp_path / "c.yaml")
     info = read_camera_info_yaml(tmp_path / "c.yaml")
     assert info.camera_name == "cam7"
     K = info.camera_matrix
-    assert K[0, 0] == K[1, 1] == session.result.camera_matrix[0, 0]
+    assert K[0, 0] == K[1, 1] == run.result.camera_matrix[0, 0]
     assert info.dist_coeffs[2] == info.dist_coeffs[3] == 0.0
-    assert projection_difference(cam, session.result)[0] < 0.06
-    short = session_summary(session)
+    assert projection_difference(cam, run.result)[0] < 0.06
+    short = solve_summary(run)
     assert "\n" not in short and "fx = fy" in short and "p1" not in short
     assert f"wrote {tmp_path / 'c.yaml'}" in short
-    long = session_summary(session, long=True)
+    long = solve_summary(run, long=True)
     assert "p1 0 (fixed)" in long and "reprojection error" in long
-    assert long.splitlines()[0] == session.result.summary(long=True).splitlines()[0]
+    assert long.splitlines()[0] == run.result.summary(long=True).splitlines()[0]
 
 
 def _collected(views: list[Detections]) -> ViewCollector:

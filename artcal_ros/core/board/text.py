@@ -9,7 +9,7 @@ from typing import Any
 import cv2
 import numpy as np
 
-from artcal_ros.core.boards.aprilgrid import describe as aprilgrid_describe
+from artcal_ros.core.board.aprilgrid import describe as aprilgrid_describe
 from artcal_ros.core.errors import BoardError
 
 

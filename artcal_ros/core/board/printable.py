@@ -34,14 +34,14 @@ import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.errors import ParameterError
-from artcal_ros.core.paper import (
+from artcal_ros.core.board.paper import (
     FOOTER_MM,
     PAGE_BORDER_MM,
     SCALE_BAR_MM,
     fit_paper,
     pattern_mm,
 )
+from artcal_ros.core.errors import ParameterError
 
 MM_PER_INCH = 25.4
 PT_PER_MM = 72.0 / MM_PER_INCH
@@ -148,9 +148,9 @@ def layout_page(board: Board, *, paper: str | None = None) -> PageLayout:
     Args:
         board: the board to print.
         paper: None to size the page to its content, or a paper name
-            (:data:`artcal_ros.core.paper.PAPERS`): portrait or landscape, the board turned
+            (:data:`artcal_ros.core.board.paper.PAPERS`): portrait or landscape, the board turned
             a quarter turn and its quiet margin narrowed if that is what fits
-            (:func:`artcal_ros.core.paper.fit_paper`); content centred.
+            (:func:`artcal_ros.core.board.paper.fit_paper`); content centred.
 
     Raises:
         ParameterError: the board does not fit on ``paper``.

@@ -7,8 +7,8 @@ import functools
 import cv2
 import numpy as np
 
-from artcal_ros.core.coverage import Readiness
 from artcal_ros.core.detections import Detections
+from artcal_ros.core.live.coverage import Readiness
 
 _GREEN = (0, 220, 0)
 _RED = (0, 0, 230)

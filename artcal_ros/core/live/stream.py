@@ -32,9 +32,9 @@ from dataclasses import dataclass
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.coverage import ViewCollector
-from artcal_ros.core.detect.tracking import MarkerTracker
 from artcal_ros.core.detections import Detections
+from artcal_ros.core.live.coverage import ViewCollector
+from artcal_ros.core.live.tracking import MarkerTracker
 
 __all__ = ["LiveConfig", "LiveCounts", "LiveDetection", "LiveFrame"]
 

@@ -2,7 +2,7 @@
 dict, with its ``data`` in any of the forms rclpy and the bag readers hand over.
 
 Shared by :mod:`artcal_ros.core.images` (sensor_msgs/Image) and
-:mod:`artcal_ros.core.compressed` (sensor_msgs/CompressedImage).
+:mod:`artcal_ros.core.images.compressed` (sensor_msgs/CompressedImage).
 """
 
 from __future__ import annotations

@@ -43,9 +43,9 @@ from typing import Any
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.coverage import ViewCollector
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError
+from artcal_ros.core.live.coverage import ViewCollector
 
 FORMAT = "artcal-session-1"
 FILE_NAME = "session.npz"

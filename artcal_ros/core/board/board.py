@@ -13,10 +13,10 @@
 - ``charuco`` is OpenCV's ``CharucoBoard``: ``cols`` x ``rows`` squares (squaresX,
   squaresY), a marker in every white square, point ids OpenCV's charuco corner ids, the
   origin at the squares' top-left outer corner, ``legacy_pattern`` as ``setLegacyPattern``.
-- ``aprilgrid`` is Kalibr's AprilGrid (:mod:`artcal_ros.core.boards.aprilgrid`) in the
+- ``aprilgrid`` is Kalibr's AprilGrid (:mod:`artcal_ros.core.board.aprilgrid`) in the
   marker grid's frame: Kalibr's tag ids (tag 0 bottom-left) and point ids (the tag corners).
 - ``circles`` and ``acircles`` are OpenCV's symmetric and asymmetric circle grids
-  (:mod:`artcal_ros.core.boards.circles`): ``cols`` x ``rows`` is findCirclesGrid's
+  (:mod:`artcal_ros.core.board.circles`): ``cols`` x ``rows`` is findCirclesGrid's
   patternSize, ``square_length`` the circle spacing, point ids findCirclesGrid's order.
 
 A marker is ``bits + 2`` modules wide (a one-module border around the code).
@@ -36,12 +36,12 @@ from typing import Any
 import cv2
 import numpy as np
 
-from artcal_ros.core.boards import BUILT_TYPES, PLANNED_TYPES, POINT_TYPES
-from artcal_ros.core.boards import aprilgrid as kalibr
-from artcal_ros.core.boards.chess import ChessLayout
-from artcal_ros.core.boards.circles import CircleLayout
-from artcal_ros.core.boards.dictionaries import predefined_code, predefined_names
-from artcal_ros.core.boards.text import cv_board, describe, print_lines, size_parameters
+from artcal_ros.core.board import aprilgrid as kalibr
+from artcal_ros.core.board.chess import ChessLayout
+from artcal_ros.core.board.circles import CircleLayout
+from artcal_ros.core.board.dictionaries import predefined_code, predefined_names
+from artcal_ros.core.board.text import cv_board, describe, print_lines, size_parameters
+from artcal_ros.core.board.types import BUILT_TYPES, PLANNED_TYPES, POINT_TYPES
 from artcal_ros.core.errors import BoardError
 
 POLARITIES = ("black", "white", "mixed", "any")
@@ -483,11 +483,11 @@ class Board:
 
     def print_lines(self) -> tuple[np.ndarray, np.ndarray]:
         """Sorted board x and y positions (metres) of every straight line the print may
-        change colour on (:func:`artcal_ros.core.boards.text.print_lines`)."""
+        change colour on (:func:`artcal_ros.core.board.text.print_lines`)."""
         return print_lines(self)
 
     def to_cv_board(self) -> cv2.aruco.Board:
-        """The equivalent OpenCV board (:func:`artcal_ros.core.boards.text.cv_board`)."""
+        """The equivalent OpenCV board (:func:`artcal_ros.core.board.text.cv_board`)."""
         return cv_board(self)
 
     def describe(self) -> str:

@@ -1,6 +1,6 @@
 """sensor_msgs/Image <-> numpy, without cv_bridge and without ROS.
 
-(sensor_msgs/CompressedImage is decoded by :mod:`artcal_ros.core.compressed`.)
+(sensor_msgs/CompressedImage is decoded by :mod:`artcal_ros.core.images.compressed`.)
 
 Duck-typed: any object (or dict) with the message's fields works, whether an rclpy
 message, a message decoded from a bag, or :func:`numpy_to_image`'s output. ``data`` may
@@ -30,7 +30,7 @@ import cv2
 import numpy as np
 
 from artcal_ros.core.errors import ImageFormatError
-from artcal_ros.core.message_fields import as_bytes, get_field
+from artcal_ros.core.images.message_fields import as_bytes, get_field
 
 __all__ = [
     "ENCODINGS",

@@ -17,9 +17,9 @@ import pytest
 ROOT = Path(__file__).resolve().parents[2]
 COLCON = Path(sys.executable).parent / "colcon"
 # one module of every subpackage: find_packages must have picked each of them up
-MODULES = ("__init__.py", "core/board.py", "core/detect/__init__.py",
-           "core/calibrate/session.py", "synth/dataset.py", "bag/reader.py", "ros/demo.py",
-           "ros/processes.py", "cli/main.py")
+MODULES = ("__init__.py", "core/board/board.py", "core/detect/__init__.py",
+           "core/calibrate/solve_run.py", "core/images/raw.py", "core/live/stream.py",
+           "synth/dataset.py", "bag/reader.py", "ros/demo.py", "ros/processes.py", "cli/main.py")
 
 # a cold build compiles the kernels (half a minute on an idle 2-core machine, more when busy)
 BUILD_TIMEOUT_S = 900

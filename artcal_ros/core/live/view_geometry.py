@@ -6,7 +6,7 @@ image (so distortion is constrained out to the edges) and that tilt the board
 the single definition of how a view is measured before any solve, used by both
 sides that judge views:
 
-- the node's :class:`~artcal_ros.core.coverage.ViewCollector` (readiness, novelty, tilt,
+- the node's :class:`~artcal_ros.core.live.coverage.ViewCollector` (readiness, novelty, tilt,
   the heat map), and
 - the calibration (``core.calibrate.views``: view selection, the degeneracy checks;
   ``core.calibrate.pipeline``: the coverage figure and its warning),

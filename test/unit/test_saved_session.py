@@ -12,7 +12,9 @@ import numpy as np
 import pytest
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.calibrate.session_file import (
+from artcal_ros.core.detections import Detections
+from artcal_ros.core.live.coverage import CoverageConfig, ViewCollector
+from artcal_ros.core.live.saved_session import (
     FILE_NAME,
     PREVIOUS_NAME,
     SessionFileError,
@@ -24,8 +26,6 @@ from artcal_ros.core.calibrate.session_file import (
     session_dir,
     write_session,
 )
-from artcal_ros.core.coverage import CoverageConfig, ViewCollector
-from artcal_ros.core.detections import Detections
 from artcal_ros.synth import Camera, random_poses
 from artcal_ros.synth.poses import marker_truth
 

@@ -3,7 +3,7 @@
 :class:`ViewCollector` keeps the views of a stream that add something (new markers, a new
 place in the image, a new tilt), counts their points over the coverage grid for the heat
 map, and says what is still missing before a solve (:class:`Readiness`). Every view is
-measured with the one view geometry of :mod:`artcal_ros.core.view_geometry`, the one the
+measured with the one view geometry of :mod:`artcal_ros.core.live.view_geometry`, the one the
 solve judges by, so the node cannot call a collection "ready" whose solve then warns that
 the coverage is poor.
 """
@@ -18,7 +18,7 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detections import Detections
-from artcal_ros.core.view_geometry import (
+from artcal_ros.core.live.view_geometry import (
     COVERAGE_GRID,
     MIN_COVERAGE,
     REGION_NAMES,

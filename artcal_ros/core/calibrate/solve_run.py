@@ -1,16 +1,16 @@
-"""The session path the node and the CLI share: views -> select -> solve -> write -> summary.
+"""The solve run the node and the CLI share: views -> select -> solve -> write -> summary.
 
 ROS-free. The CLI collects views with :func:`detect_views` from image files or a bag, the
-node with its :class:`~artcal_ros.core.coverage.ViewCollector` from a live stream; both
-then call :func:`solve_session` (the solve options come from the flat parameters through
+node with its :class:`~artcal_ros.core.live.coverage.ViewCollector` from a live stream; both
+then call :func:`solve_views` (the solve options come from the flat parameters through
 :func:`calibrate_kwargs`, so node and CLI read the same ``calibrate.*`` names) and phrase
-the result with :func:`session_summary`. The node runs it off the executor thread with
+the result with :func:`solve_summary`. The node runs it off the executor thread with
 :func:`run_solve`.
 
 ::
 
-    session = solve_session(dets, board, size, params)   # calibrates, writes the YAML
-    print(session_summary(session, long=True))
+    run = solve_views(dets, board, size, params)   # calibrates, writes the YAML
+    print(solve_summary(run, long=True))
 """
 
 from __future__ import annotations
@@ -25,9 +25,9 @@ from typing import TYPE_CHECKING, Any
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.coverage import Readiness
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
+from artcal_ros.core.live.coverage import Readiness
 from artcal_ros.core.params import output_path
 
 if TYPE_CHECKING:
@@ -81,8 +81,8 @@ class SolveOutcome:
 
 
 @dataclass(frozen=True)
-class Session:
-    """A finished calibration session.
+class SolveRun:
+    """A finished solve run.
 
     Attributes:
         result: the calibration.
@@ -146,10 +146,10 @@ def detect_views(frames: Iterable[tuple[str, np.ndarray]], board: Board, *,
     return dets, size
 
 
-def solve_session(views: Sequence[Detections], board: Board, image_size: tuple[int, int],
+def solve_views(views: Sequence[Detections], board: Board, image_size: tuple[int, int],
                   params: Mapping[str, Any], *, output: str | Path | None = None,
                   max_views: int | None = None, accept_weak: bool = False,
-                  progress: Callable[[str], None] | None = None) -> Session:
+                  progress: Callable[[str], None] | None = None) -> SolveRun:
     """Select views, solve with the parameters' options and write the calibration YAML.
 
     Args:
@@ -183,19 +183,19 @@ def solve_session(views: Sequence[Detections], board: Board, image_size: tuple[i
         write_camera_info_yaml(path, result, camera_name=str(params["camera_name"]))
     except ArtcalError as e:
         raise OutputError(str(e), result) from None
-    return Session(result, path, time.monotonic() - start)
+    return SolveRun(result, path, time.monotonic() - start)
 
 
-def session_summary(session: Session, *, long: bool = False,
+def solve_summary(run: SolveRun, *, long: bool = False,
                     readiness: Readiness | None = None) -> str:
-    """The one summary of a session: the result's own (short or long, see
+    """The one summary of a solve run: the result's own (short or long, see
     :meth:`CalibrationResult.summary`), the file written and, for the node, what the
     collection still lacks."""
-    text = session.result.summary(long=long)
+    text = run.result.summary(long=long)
     if long:
-        text += f"\nwrote {session.path} ({session.seconds:.1f} s)"
+        text += f"\nwrote {run.path} ({run.seconds:.1f} s)"
     else:
-        text += f"; wrote {session.path}"
+        text += f"; wrote {run.path}"
     if readiness is not None and not readiness.ready:
         text += ("\n" if long else "; ") + f"note, still missing: {'; '.join(readiness.missing)}"
     return text
@@ -208,7 +208,7 @@ class CancelledError(Exception):
 def run_solve(views: Sequence[Detections], board: Board, image_size: tuple[int, int],
               params: Mapping[str, Any], readiness: Readiness, *,
               stopping: threading.Event) -> SolveOutcome:
-    """The node's session: :func:`solve_session` on a daemon thread, waiting for it unless
+    """The node's solve: :func:`solve_views` on a daemon thread, waiting for it unless
     ``stopping`` is set.
 
     On shutdown (``stopping`` set) the wait ends at once and the solve stops at its next
@@ -235,7 +235,7 @@ def run_solve(views: Sequence[Detections], board: Board, image_size: tuple[int, 
 
     def work() -> None:
         try:
-            box["value"] = solve_session(views, board, image_size, params, progress=progress)
+            box["value"] = solve_views(views, board, image_size, params, progress=progress)
         except CancelledError:
             box["error"] = "cancelled"
         except OutputError as e:
@@ -261,5 +261,5 @@ def run_solve(views: Sequence[Detections], board: Board, image_size: tuple[int, 
         unsaved: OutputError = box["unsaved"]
         return SolveOutcome(False, f"calibrated but NOT saved: {unsaved}; "
                             f"{unsaved.result.summary()}", unsaved.result)
-    session: Session = box["value"]
-    return SolveOutcome(True, session_summary(session, readiness=readiness), session.result)
+    run: SolveRun = box["value"]
+    return SolveOutcome(True, solve_summary(run, readiness=readiness), run.result)

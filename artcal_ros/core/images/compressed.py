@@ -2,7 +2,7 @@
 
 Duck-typed as :mod:`artcal_ros.core.images` is: any object (or dict) with ``format`` and
 ``data`` works. The header is checked before decoding
-(:func:`~artcal_ros.core.compressed_header.check_compressed_header`), so a damaged frame
+(:func:`~artcal_ros.core.images.compressed_header.check_compressed_header`), so a damaged frame
 cannot make OpenCV allocate more than its bytes can hold.
 
 Output conventions (as for sensor_msgs/Image in :mod:`artcal_ros.core.images`):
@@ -21,9 +21,9 @@ from typing import Any
 import cv2
 import numpy as np
 
-from artcal_ros.core.compressed_header import check_compressed_header
 from artcal_ros.core.errors import ImageFormatError
-from artcal_ros.core.message_fields import as_bytes, get_field
+from artcal_ros.core.images.compressed_header import check_compressed_header
+from artcal_ros.core.images.message_fields import as_bytes, get_field
 
 __all__ = ["compressed_to_gray", "compressed_to_numpy"]
 

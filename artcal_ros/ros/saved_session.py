@@ -7,13 +7,13 @@ import threading
 from rclpy.node import Node
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.calibrate.session_file import (
+from artcal_ros.core.live.coverage import ViewCollector
+from artcal_ros.core.live.saved_session import (
     FILE_NAME,
     SessionSource,
     SessionStore,
     session_dir,
 )
-from artcal_ros.core.coverage import ViewCollector
 from artcal_ros.core.params import ParamValue
 
 

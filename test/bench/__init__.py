@@ -1,0 +1,1 @@
+"""Smoke tests of the benchmarks in bench/: each runs small and its figures are checked."""

@@ -1,0 +1,1 @@
+"""Build tests: colcon and pip builds of the package, the kernels compiled at install."""
