@@ -24,6 +24,8 @@ from artcal_ros.core.camera import MODELS
 from artcal_ros.core.errors import ParameterError
 
 ParamValue = bool | int | float | str
+# The flat parameters: ParamValue each, ``cameras`` a list of names.
+Params = dict[str, Any]
 
 
 @dataclass(frozen=True)
@@ -31,7 +33,7 @@ class ParamSpec:
     """One parameter: its dotted name, default, description and allowed values."""
 
     name: str
-    default: ParamValue
+    default: ParamValue | list[str]
     description: str
     choices: tuple[str, ...] = ()
     check: Callable[[Any], str | None] | None = None  # returns a complaint or None
@@ -48,6 +50,20 @@ def _non_negative(value: Any) -> str | None:
 
 def _a_name(value: Any) -> str | None:
     return None if str(value).strip() else "must not be empty"
+
+
+def _camera_names(value: Any) -> str | None:
+    names = list(value)
+    if len(names) == 1:
+        return ("names one camera; give none (one camera on 'image') or two or more, "
+                "e.g. [left, right]")
+    for name in names:
+        if not name or not all(c.isalnum() or c == "_" for c in name) or name[0].isdigit():
+            return (f"has {name!r}, not a camera name (letters, digits and _, not starting "
+                    "with a digit: it becomes a topic and a file name)")
+    if len(set(names)) != len(names):
+        return "names a camera twice"
+    return None
 
 
 def _board_type(value: Any) -> str | None:
@@ -143,6 +159,9 @@ PARAMETERS: tuple[ParamSpec, ...] = (
     ParamSpec("calibrate.zero_tangent_dist", False,
               "Hold the tangential distortion at zero, p1 = p2 = 0 (plumb_bob and "
               "rational_polynomial; equidistant has none)."),
+    ParamSpec("calibrate.fix_intrinsics", False,
+              "A rig: keep the given cameras' intrinsics (their camera_info YAMLs) and solve "
+              "only the extrinsics."),
     ParamSpec("detector.gamma", 0.0,
               "Tone curve of the images: 0 estimates it from the board's edges; > 0 fixes "
               "linear = value ** gamma (2.2 sRGB-like, 1.0 linear).", check=_non_negative),
@@ -152,6 +171,13 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "Calibration YAML to write; empty means ~/.ros/camera_info/<camera_name>.yaml.",
               allowed="a file path, or empty"),
     ParamSpec("commit", False, "Send the result to the camera driver's set_camera_info."),
+    ParamSpec("cameras", [],
+              "Empty: one camera on 'image'. Two or more names, e.g. [left, right]: a rig, one "
+              "image topic per camera (left/image, right/image), solved together.",
+              check=_camera_names, allowed="[] or two or more names, e.g. [left, right]"),
+    ParamSpec("sync_tolerance", 0.01,
+              "Seconds: images of different cameras of a rig within it form one rig frame "
+              "(camera_calibration's --approximate).", check=_positive),
     # Node-only: how the calibrator node listens and when it may solve.
     ParamSpec("image_transport", "raw",
               "raw: subscribe sensor_msgs/Image on 'image'; compressed: "
@@ -236,9 +262,10 @@ CROSS_CHECKS: tuple[Callable[[Mapping[str, ParamValue]], str | None], ...] = (
 )
 
 
-def defaults() -> dict[str, ParamValue]:
-    """Every parameter at its default value."""
-    return {s.name: s.default for s in PARAMETERS}
+def defaults() -> Params:
+    """Every parameter at its default value (a list default is a fresh copy)."""
+    return {s.name: list(s.default) if isinstance(s.default, list) else s.default
+            for s in PARAMETERS}
 
 
 def allowed_text(spec: ParamSpec) -> str:
@@ -248,12 +275,14 @@ def allowed_text(spec: ParamSpec) -> str:
         return "one of " + ", ".join(spec.choices)
     if want is bool:
         return "true or false"
+    if want is list:
+        return f"a list of names ({spec.allowed})" if spec.allowed else "a list of names"
     words = {int: "an integer", float: "a number"}.get(want, "a string")
     text = words + _RANGE_WORDS.get(spec.check, "")
     return f"{text} ({spec.allowed})" if spec.allowed else text
 
 
-def _coerce(spec: ParamSpec, value: Any) -> ParamValue:
+def _coerce(spec: ParamSpec, value: Any) -> ParamValue | list[str]:
     want = type(spec.default)
     wrong = ParameterError(
         f"parameter '{spec.name}': expected {allowed_text(spec)}, got {value!r}")
@@ -265,6 +294,10 @@ def _coerce(spec: ParamSpec, value: Any) -> ParamValue:
         raise wrong
     if want is str and value is None:  # YAML's empty value: ``output_file:``
         return ""
+    if want is list:
+        if isinstance(value, list | tuple) and all(isinstance(v, str) for v in value):
+            return [str(v).strip() for v in value]
+        raise wrong
     if isinstance(value, bool | list | dict | tuple | set) or value is None:
         raise wrong
     if want is str:
@@ -278,7 +311,7 @@ def _coerce(spec: ParamSpec, value: Any) -> ParamValue:
     return int(f) if want is int else f
 
 
-def validate(values: Mapping[str, Any]) -> dict[str, ParamValue]:
+def validate(values: Mapping[str, Any]) -> Params:
     """Return a complete, type-checked copy of ``values`` (missing names take defaults).
 
     Raises:
@@ -321,7 +354,7 @@ def _flatten(tree: Mapping[str, Any], prefix: str = "") -> dict[str, Any]:
 
 
 def load_params(path: str | os.PathLike[str] | None = None,
-                overrides: Mapping[str, Any] | None = None) -> dict[str, ParamValue]:
+                overrides: Mapping[str, Any] | None = None) -> Params:
     """Read a ROS 2 parameters file (``/**: ros__parameters: ...``) into a flat dict.
 
     Args:

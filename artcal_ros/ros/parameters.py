@@ -25,13 +25,13 @@ from artcal_ros.core.params import PARAMETERS, ParamValue, validate
 # start-up: restart the node instead.
 READ_ONLY = frozenset(s.name for s in PARAMETERS if s.name.startswith("board.")
                       or s.name in ("points", "camera_model", "image_transport", "image_qos",
-                                   "resume"))
+                                   "resume", "cameras"))
 
 
 def _descriptor(name: str) -> ParameterDescriptor:
     spec = next(s for s in PARAMETERS if s.name == name)
     kind = {bool: "bool", int: "integer", float: "number (metres where a length)",
-            str: "string"}[type(spec.default)]
+            str: "string", list: "string array"}[type(spec.default)]
     constraints = (f"one of: {', '.join(spec.choices)}" if spec.choices
                    else f"{kind}: {spec.allowed}" if spec.allowed else kind)
     return ParameterDescriptor(
