@@ -32,16 +32,13 @@ from artcal_ros.core.calibrate.model import (
     free_parameters,
 )
 from artcal_ros.core.calibrate.pipeline import calibrate
-from artcal_ros.core.calibrate.rectify import rectify_pair
 from artcal_ros.core.calibrate.result import CalibrationResult, DroppedView
-from artcal_ros.core.calibrate.rig_cameras import camera_result, epipolar_correspondences
-from artcal_ros.core.calibrate.rig_result import RigPair, RigResult
+from artcal_ros.core.calibrate.rig_cameras import rig_result
+from artcal_ros.core.calibrate.rig_result import Pair, RigResult
 from artcal_ros.core.calibrate.rig_solve import (
     RigCamera,
     RigObservation,
     RigSolution,
-    pair_std_devs,
-    pair_transform,
     rig_bundle_adjust,
 )
 from artcal_ros.core.calibrate.rig_start import (
@@ -61,7 +58,6 @@ OUTLIER_SIGMAS = 5.0  # as the single-camera pipeline: a point this many robust 
 OUTLIER_FLOOR_PX = 0.5  # ... and at least this far is an outlier
 OBSERVATION_OUTLIER_FACTOR = 3.0  # an observation whose RMS is this many times the median's
 REWEIGHT_ROUNDS = 2
-WEAK_PAIR_FRAMES = 5  # a connecting pair with fewer shared frames gets a warning
 
 
 def _observation_problem(view: ViewPoints, board: Board) -> str | None:
@@ -115,6 +111,50 @@ def _fixed_camera(name: str, model: str, size: tuple[int, int],
                            size)
     except ParameterError as e:
         raise ParameterError(f"fixed_intrinsics of camera {name}: {e}") from None
+
+
+def _camera_views(dets: Sequence[Detections], board: Board, points: str,
+                  dropped: list[DroppedView]) -> dict[int, ViewPoints]:
+    """Frame index -> one camera's points there, where enough to join the solve."""
+    out: dict[int, ViewPoints] = {}
+    for f, det in enumerate(dets):
+        if len(det) == 0 and len(det.point_ids) == 0:
+            continue
+        v = view_points(det, board, points, f)
+        problem = _observation_problem(v, board)
+        if problem is None:
+            out[f] = v
+        else:
+            dropped.append(DroppedView(f, det.source, problem))
+    return out
+
+
+def _camera_poses(views: dict[int, ViewPoints], cam: CameraModel, points: str,
+                  dropped: list[DroppedView]) -> tuple[dict[int, ViewPoints],
+                                                       dict[int, tuple[np.ndarray, np.ndarray]]]:
+    """The views (centres re-measured through the lens) and their T_cam_board, by frame;
+    views without a pose are dropped."""
+    kept: dict[int, ViewPoints] = {}
+    poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
+    for f, v in views.items():
+        if points == "centers":
+            v = lens_corrected_centers(v, cam)
+        try:
+            poses[f] = estimate_pose(v, cam.K, cam.dist, cam.model)
+            kept[f] = v
+        except CalibrationError:
+            dropped.append(DroppedView(f, v.source, "no board pose found"))
+    return kept, poses
+
+
+def _check_connected(names: Sequence[str],
+                     views: Mapping[str, Mapping[int, ViewPoints]]) -> dict[Pair, int]:
+    """Every pair's shared frames; CalibrationError when a camera is cut off."""
+    shared = shared_frame_counts(names, {n: set(views[n]) for n in names})
+    problem = connectivity_problem(names, shared)
+    if problem is not None:
+        raise CalibrationError(problem)
+    return shared
 
 
 def _select_frames(frames_seen: dict[int, int], max_frames: int) -> list[int]:
@@ -223,52 +263,33 @@ def calibrate_rig(detections: Mapping[str, Sequence[Detections | None]], board: 
     dets = {n: [d if d is not None else Detections.empty(sizes[n]) for d in detections[n]]
             for n in names}
 
-    # Step 1. Each camera alone: its intrinsics (or the given ones).
+    # Step 1. Each camera's points in every frame; are the cameras connected at all?
+    dropped: dict[str, list[DroppedView]] = {n: [] for n in names}
+    views = {n: _camera_views(dets[n], board, points, dropped[n]) for n in names}
+    _check_connected(names, views)
+
+    # Step 2. Each camera alone: its intrinsics (or the given ones), its board poses.
     single: dict[str, CalibrationResult | None] = {}
     cams: dict[str, CameraModel] = {}
+    poses: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]] = {}
     for n in names:
         if n in fixed:
             cams[n], single[n] = _fixed_camera(n, models[n], sizes[n], fixed[n]), None
-            continue
-        say(f"calibrating camera {n} alone")
-        try:
-            res = calibrate(dets[n], board, image_size=sizes[n], model=models[n], points=points,
-                            k_coefficients=options.k_coefficients,
-                            fix_principal_point=options.fix_principal_point,
-                            fix_aspect_ratio=options.fix_aspect_ratio,
-                            zero_tangent_dist=options.zero_tangent_dist, weighted=weighted)
-        except CalibrationError as e:
-            raise CalibrationError(f"camera {n}: {e}") from None
-        cams[n], single[n] = res.camera, res
+        else:
+            say(f"calibrating camera {n} alone")
+            try:
+                res = calibrate(dets[n], board, image_size=sizes[n], model=models[n],
+                                points=points, k_coefficients=options.k_coefficients,
+                                fix_principal_point=options.fix_principal_point,
+                                fix_aspect_ratio=options.fix_aspect_ratio,
+                                zero_tangent_dist=options.zero_tangent_dist, weighted=weighted)
+            except CalibrationError as e:
+                raise CalibrationError(f"camera {n}: {e}") from None
+            cams[n], single[n] = res.camera, res
+        views[n], poses[n] = _camera_poses(views[n], cams[n], points, dropped[n])
 
-    # Step 2. Each camera's points and board pose in every frame it measures the board.
-    dropped: dict[str, list[DroppedView]] = {n: [] for n in names}
-    views: dict[str, dict[int, ViewPoints]] = {n: {} for n in names}
-    poses: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]] = {n: {} for n in names}
-    for n in names:
-        cam = cams[n]
-        for f, det in enumerate(dets[n]):
-            if len(det) == 0 and len(det.point_ids) == 0:
-                continue
-            v = view_points(det, board, points, f)
-            problem = _observation_problem(v, board)
-            if problem is None and points == "centers":
-                v = lens_corrected_centers(v, cam)
-            if problem is None:
-                try:
-                    poses[n][f] = estimate_pose(v, cam.K, cam.dist, cam.model)
-                except CalibrationError:
-                    problem = "no board pose found"
-            if problem is None:
-                views[n][f] = v
-            else:
-                dropped[n].append(DroppedView(f, det.source, problem))
-
-    # Step 3. Connectivity, the frames to solve and the start.
-    shared = shared_frame_counts(names, {n: set(views[n]) for n in names})
-    problem = connectivity_problem(names, shared)
-    if problem is not None:
-        raise CalibrationError(problem)
+    # Step 3. The frames to solve and the start.
+    shared = _check_connected(names, views)
     tree = spanning_tree(names, shared)
     seen_by = {f: sum(f in views[n] for n in names) for f in range(n_frames)}
     frames = _select_frames({f: c for f, c in seen_by.items() if c > 0}, max_frames)
@@ -321,7 +342,7 @@ def calibrate_rig(detections: Mapping[str, Sequence[Detections | None]], board: 
 
     # Step 5. Results: cameras, pairs with their uncertainty, rectification.
     say("extrinsics' uncertainty and rectification")
-    return _result(names, sizes, points, board, fixed, single, sol, obs, frames, dropped,
+    return rig_result(names, sizes, points, board, fixed, single, sol, obs, frames, dropped,
                    outliers, points_dropped, tree, time.monotonic() - start)
 
 
@@ -334,48 +355,3 @@ def _again(obs: list[RigObservation], sol: RigSolution, weighted: bool) -> RigSo
     return rig_bundle_adjust(obs, list(sol.cameras), sol.extrinsics, sol.poses,
                              weighted=weighted)
 
-
-def _result(names: tuple[str, ...], sizes: dict[str, tuple[int, int]], points: str,
-            board: Board, fixed: Mapping[str, object],
-            single: Mapping[str, CalibrationResult | None], sol: RigSolution,
-            obs: list[RigObservation], frames: list[int],
-            dropped: dict[str, list[DroppedView]], outliers: dict[str, list[np.ndarray]],
-            points_dropped: int, tree: Sequence[tuple[str, str]],
-            elapsed_s: float) -> RigResult:
-    cameras = {n: camera_result(k, sizes[n], points, sol, obs, frames, single[n],
-                                dropped[n], outliers[n], board)
-               for k, n in enumerate(names)}
-    seen = {n: {frames[o.frame] for o in obs if o.camera == k} for k, n in enumerate(names)}
-    shared = shared_frame_counts(names, seen)
-    extrinsics: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
-    pairs: dict[tuple[str, str], RigPair] = {}
-    for a_k, a in enumerate(names):
-        for b_k, b in enumerate(names):
-            if a == b:
-                continue
-            R, t = pair_transform(sol.extrinsics, a_k, b_k)
-            rot_std, t_std, base_std = pair_std_devs(sol, a_k, b_k)
-            extrinsics[a, b] = (R, t)
-            pairs[a, b] = RigPair(a, b, R, t, float(np.linalg.norm(t)), base_std, rot_std,
-                                  t_std, len(seen[a] & seen[b]))
-    rectification = {}
-    for k in range(len(names) - 1):
-        a, b = names[k], names[k + 1]
-        pa, pb = epipolar_correspondences(obs, k, k + 1)
-        R, t = extrinsics[a, b]
-        rectification[a, b] = rectify_pair(a, b, cameras[a].camera, cameras[b].camera, R, t,
-                                           pa, pb)
-    warnings = [f"cameras {a} and {b} share only {shared.get((a, b), shared.get((b, a), 0))} "
-                f"frames: hold the board where both see part of it in a few more"
-                for a, b in tree if len(seen[a] & seen[b]) < WEAK_PAIR_FRAMES]
-    res_all = np.concatenate([r for r in sol.residuals])
-    all_dropped = sorted({(d.view_index, d.source, f"{n}: {d.reason}")
-                          for n in names for d in dropped[n]})
-    return RigResult(
-        names=names, cameras=cameras, extrinsics=extrinsics, pairs=pairs, shared_frames=shared,
-        rectification=rectification, frames_used=tuple(frames),
-        frames_dropped=tuple(DroppedView(*d) for d in all_dropped),
-        board_rvecs=sol.poses[:, :3].copy(), board_tvecs=sol.poses[:, 3:].copy(),
-        reprojection_rms_px=float(np.sqrt(np.mean(np.sum(res_all ** 2, axis=1)))),
-        points_dropped=points_dropped, fixed_intrinsics=len(fixed) == len(names),
-        solve_time_s=elapsed_s, warnings=tuple(warnings))

@@ -1,21 +1,32 @@
-"""Each camera's part of a rig solve as a :class:`CalibrationResult`, and the corresponding
-points of a camera pair (the same board point in the same frame) for the epipolar error."""
+"""The result of a rig solve: each camera's part as a :class:`CalibrationResult`, the pairs'
+extrinsics and rectification, and the corresponding points of a pair (the same board point
+in the same frame) for the epipolar error."""
 
 from __future__ import annotations
 
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 
 import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate.model import DIST_NAMES, TIED_FOCAL, Solution
 from artcal_ros.core.calibrate.quality import parameter_effect_px
+from artcal_ros.core.calibrate.rectify import rectify_pair
 from artcal_ros.core.calibrate.result import CalibrationResult, DroppedView
-from artcal_ros.core.calibrate.rig_solve import RigObservation, RigSolution, compose
+from artcal_ros.core.calibrate.rig_result import RigPair, RigResult
+from artcal_ros.core.calibrate.rig_solve import (
+    RigObservation,
+    RigSolution,
+    compose,
+    pair_std_devs,
+    pair_transform,
+)
+from artcal_ros.core.calibrate.rig_start import shared_frame_counts
 from artcal_ros.core.calibrate.views import coverage_cells, feature_term
 from artcal_ros.core.live.view_geometry import COVERAGE_GRID, MIN_COVERAGE
 
 PARAM_EFFECT_WARN_PX = 0.5  # as the single-camera pipeline: a weak parameter moves this much
+WEAK_PAIR_FRAMES = 5  # a connecting pair with fewer shared frames gets a warning
 
 
 def _named_std_devs(free: tuple[str, ...], std: np.ndarray) -> dict[str, float]:
@@ -116,3 +127,51 @@ def epipolar_correspondences(obs: Sequence[RigObservation], a: int,
     if not pa:
         return np.zeros((0, 2)), np.zeros((0, 2))
     return np.array(pa), np.array(pb)
+
+
+def rig_result(names: tuple[str, ...], sizes: dict[str, tuple[int, int]], points: str,
+               board: Board, fixed: Mapping[str, object],
+               single: Mapping[str, CalibrationResult | None], sol: RigSolution,
+               obs: list[RigObservation], frames: list[int],
+               dropped: dict[str, list[DroppedView]], outliers: dict[str, list[np.ndarray]],
+               points_dropped: int, tree: Sequence[tuple[str, str]],
+               elapsed_s: float) -> RigResult:
+    """The :class:`RigResult` of a finished joint solve: each camera's result, every ordered
+    pair's extrinsics with their uncertainty, the rectification of consecutive pairs."""
+    cameras = {n: camera_result(k, sizes[n], points, sol, obs, frames, single[n],
+                                dropped[n], outliers[n], board)
+               for k, n in enumerate(names)}
+    seen = {n: {frames[o.frame] for o in obs if o.camera == k} for k, n in enumerate(names)}
+    shared = shared_frame_counts(names, seen)
+    extrinsics: dict[tuple[str, str], tuple[np.ndarray, np.ndarray]] = {}
+    pairs: dict[tuple[str, str], RigPair] = {}
+    for a_k, a in enumerate(names):
+        for b_k, b in enumerate(names):
+            if a == b:
+                continue
+            R, t = pair_transform(sol.extrinsics, a_k, b_k)
+            rot_std, t_std, base_std = pair_std_devs(sol, a_k, b_k)
+            extrinsics[a, b] = (R, t)
+            pairs[a, b] = RigPair(a, b, R, t, float(np.linalg.norm(t)), base_std, rot_std,
+                                  t_std, len(seen[a] & seen[b]))
+    rectification = {}
+    for k in range(len(names) - 1):
+        a, b = names[k], names[k + 1]
+        pa, pb = epipolar_correspondences(obs, k, k + 1)
+        R, t = extrinsics[a, b]
+        rectification[a, b] = rectify_pair(a, b, cameras[a].camera, cameras[b].camera, R, t,
+                                           pa, pb)
+    warnings = [f"cameras {a} and {b} share only {shared.get((a, b), shared.get((b, a), 0))} "
+                f"frames: hold the board where both see part of it in a few more"
+                for a, b in tree if len(seen[a] & seen[b]) < WEAK_PAIR_FRAMES]
+    res_all = np.concatenate([r for r in sol.residuals])
+    all_dropped = sorted({(d.view_index, d.source, f"{n}: {d.reason}")
+                          for n in names for d in dropped[n]})
+    return RigResult(
+        names=names, cameras=cameras, extrinsics=extrinsics, pairs=pairs, shared_frames=shared,
+        rectification=rectification, frames_used=tuple(frames),
+        frames_dropped=tuple(DroppedView(*d) for d in all_dropped),
+        board_rvecs=sol.poses[:, :3].copy(), board_tvecs=sol.poses[:, 3:].copy(),
+        reprojection_rms_px=float(np.sqrt(np.mean(np.sum(res_all ** 2, axis=1)))),
+        points_dropped=points_dropped, fixed_intrinsics=len(fixed) == len(names),
+        solve_time_s=elapsed_s, warnings=tuple(warnings))

@@ -66,7 +66,11 @@ def connectivity_problem(names: Sequence[str], shared: Mapping[Pair, int], *,
     counts = ", ".join(f"{a}-{b} {_count(shared, a, b)}" for i, a in enumerate(names)
                        for b in names[i + 1:])
     # The connected camera that shares most with the cut-off ones is the one to pair with.
-    partner = max(sorted(reached), key=lambda r: sum(_count(shared, r, n) for n in apart))
+    # (on a tie, the nearest in the cameras' order: neighbours in a list are usually
+    # neighbours on the mount)
+    first = names.index(apart[0])
+    partner = max(reached, key=lambda r: (sum(_count(shared, r, n) for n in apart),
+                                          -abs(names.index(r) - first)))
     which = " and ".join(apart)
     verb = "is" if len(apart) == 1 else "are"
     return (f"camera{'s' if len(apart) > 1 else ''} {which} {verb} not connected to the rig: "
