@@ -113,8 +113,9 @@ class RigResult:
             for every pair with ``a`` before ``b`` in ``names``.
         rectification: ``(a, b) -> Rectification`` for each consecutive pair of ``names``.
         frames_used: rig frame indices (positions in the input lists) in the final solve.
-        frames_dropped: rig frames left out and why (``view_index`` is the frame index;
-            a frame none of whose cameras measured the board is not listed).
+        frames_dropped: each camera's frames left out and why (``view_index`` is the
+            frame index, ``reason`` starts with the camera's name; a camera's frame without
+            any of the board is not listed).
         board_rvecs, board_tvecs: (F, 3) T_ref_board of each frame of ``frames_used``
             (Rodrigues, metres), the reference camera's frame.
         reprojection_rms_px: RMS residual length over every camera's points, pixels.
