@@ -7,8 +7,6 @@ use; the figures are in docs/benchmarks.md ("Exposure sweep").
 
 from __future__ import annotations
 
-from typing import Any
-
 import numpy as np
 import pytest
 
@@ -22,7 +20,7 @@ from artcal_ros.core.detect.exposure import (
     saturates,
     saturation_image,
 )
-from artcal_ros.core.detect.step_model import fit_step_model, pixel_esf
+from artcal_ros.core.detect.step_model import StepSamples, fit_step_model, pixel_esf
 from artcal_ros.synth import Camera, Photometry, RenderedView, random_poses, render_view
 
 CAM = Camera.preset("webcam")
@@ -135,10 +133,11 @@ def test_saturation_image_and_dark_level() -> None:
 
 
 def _clipped_side(rng: np.random.Generator, true_e: float, sigma: float, A: float, D: float,
-                  normal: tuple[float, float], noise: float) -> tuple[np.ndarray, dict[str, Any]]:
-    """One side's samples of a blurred step of light A + D (clipped at 1) across an edge at
-    ``true_e`` px, and the other arguments of ``fit_step_model`` for it: 30 profiles along
-    the side, a sample every pixel across it at varying phase."""
+                  normal: tuple[float, float], noise: float
+                  ) -> tuple[np.ndarray, StepSamples]:
+    """One side's values of a blurred step of light A + D (clipped at 1) across an edge at
+    ``true_e`` px, and its samples: 30 profiles along the side, a sample every pixel
+    across it at varying phase."""
     nx, ny = normal
     tau = np.repeat(np.linspace(-1.0, 1.0, 30), 9)
     s = np.tile(np.arange(-4.0, 5.0), 30) + rng.uniform(-0.5, 0.5, tau.size)
@@ -146,11 +145,10 @@ def _clipped_side(rng: np.random.Generator, true_e: float, sigma: float, A: floa
     values = np.minimum(light + rng.normal(0.0, noise, s.size), 1.0)
     values[light >= 1.0] = 1.0
     basis = np.stack([np.ones_like(tau), tau, tau ** 2 - 1.0 / 3.0], axis=1)
-    common: dict[str, Any] = dict(
-        s=s, side=np.zeros(s.size, np.intp), n_sides=1, basis=basis, coef0=np.zeros((1, 3)),
+    return values, StepSamples(
+        s=s, side=np.zeros(s.size, np.intp), n_sides=1, basis=basis,
         far=np.zeros((s.size, 1)), module_px=np.full(s.size, 50.0), fit_order=np.array([2]),
-        normal=np.array([[nx, ny]]), iterations=30)
-    return values, common
+        normal=np.array([[nx, ny]]))
 
 
 @pytest.mark.parametrize("angle_deg", [0.0, 20.0])
@@ -159,10 +157,11 @@ def test_censored_step_fit_finds_clipped_edge(angle_deg: float) -> None:
     the plain fit of the clipped profile is pulled toward the dark side."""
     true_e = 0.23
     nx, ny = np.cos(np.radians(angle_deg)), np.sin(np.radians(angle_deg))
-    values, common = _clipped_side(np.random.default_rng(5204), true_e, 0.6, 0.05, 6.0,
-                                   (nx, ny), 0.002)
-    censored = fit_step_model(values, censor_at=0.999, **common)[0][0, 0]
-    plain = fit_step_model(values, **common)[0][0, 0]
+    values, samples = _clipped_side(np.random.default_rng(5204), true_e, 0.6, 0.05, 6.0,
+                                    (nx, ny), 0.002)
+    start = np.zeros((1, 3))
+    censored = fit_step_model(values, samples, start, iterations=30, censor_at=0.999)[0][0, 0]
+    plain = fit_step_model(values, samples, start, iterations=30)[0][0, 0]
     assert censored == pytest.approx(true_e, abs=0.05)
     assert plain < true_e - 0.3
 
@@ -171,13 +170,12 @@ def test_held_blur_and_contrast_place_a_lone_clipped_edge() -> None:
     """A clipped edge with nothing behind it shows only its transition's dark tail; held
     at its marker's blur and contrast (here the true ones), the censored fit finds it."""
     true_e, sigma, D = -0.31, 0.7, 5.0
-    values, common = _clipped_side(np.random.default_rng(5205), true_e, sigma, 0.04, D,
-                                   (0.95, 0.31), 0.004)
-    common["censor_at"] = 0.999
+    values, samples = _clipped_side(np.random.default_rng(5205), true_e, sigma, 0.04, D,
+                                    (0.95, 0.31), 0.004)
     contrast = np.zeros(1)
-    coef, _, blur = fit_step_model(values, hold_blur=np.array([sigma]),
-                                   hold_contrast=np.array([D]), contrast_out=contrast,
-                                   **common)
+    coef, _, blur = fit_step_model(values, samples, np.zeros((1, 3)), iterations=30,
+                                   censor_at=0.999, hold_blur=np.array([sigma]),
+                                   hold_contrast=np.array([D]), contrast_out=contrast)
     assert coef[0, 0] == pytest.approx(true_e, abs=0.03)
     assert blur[0] == pytest.approx(sigma) and contrast[0] == pytest.approx(D)
 

@@ -201,7 +201,7 @@ class _ToneProbe:
         sides = fit.sides[pick.astype(int)]
         fit_values, values = fit.subset(sides, copies=len(CANDIDATES))
         costs, sound = probe_costs(fit_values, values, sides, self.curve, fit.coef, fit.blur)
-        counts = np.bincount(np.asarray(fit.common["side"]), minlength=len(fit.coef))[sides]
+        counts = np.bincount(np.asarray(fit.samples.side), minlength=len(fit.coef))[sides]
         self.pool.add(costs, int(counts[sound].sum()), int(sound.sum()))
 
 

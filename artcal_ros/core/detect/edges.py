@@ -1,20 +1,15 @@
 """Sub-pixel marker corners from fitted border edges (the ARTag way).
 
-Each side of a marker's outer border is a step edge between the border and the
-quiet zone around the marker. A first straight line per side comes from the
-strongest gradient across it; then the raw pixels of a band across each side
-are fitted with a blurred-step model (:mod:`artcal_ros.core.detect.step_model`:
-the pixel's square footprint, a Gaussian blur per side, the code cells behind
-the border from the decoded id). Sides are then, with a lens given or estimated
-from the sides' curvature (plumb lines, :mod:`artcal_ros.core.detect.plumb`,
-pooled over frames by :class:`~artcal_ros.core.detect.lens.LensPool`), bent
-exactly as the lens bends a straight edge, and neighbouring sides are
-intersected into corners (:mod:`artcal_ros.core.detect.sides`).
+A first straight line per side of a marker's border comes from the strongest gradient
+across it; then the raw pixels of a band across each side are fitted with a blurred-step
+model (:mod:`.step_model`: the pixel's footprint, a Gaussian blur per side, the code cells
+behind the border from the decoded id). With a lens given or estimated from the sides'
+curvature (:mod:`.plumb`, pooled by :class:`~.lens.LensPool`) the sides are bent as the
+lens bends a straight edge, and neighbouring sides are intersected into corners
+(:mod:`.sides`).
 
-Why the image is read in *linear* intensity: a pixel integrates light, and the
-gamma encoding comes afterwards. A blurred step is symmetric about the edge in
-linear light, not in gamma-encoded grey values, so a grey-level midpoint of the
-encoded image sits toward the dark side. The caller passes a linearised image.
+The image is read in *linear* intensity: a blurred step is symmetric about its edge in
+linear light, not in gamma-encoded grey values. The caller passes a linearised image.
 
 All arrays are batched over the S = 4 M sides of M markers; side k of a marker
 runs from its corner k to corner k+1 (TL->TR, TR->BR, BR->BL, BL->TL), so
@@ -24,7 +19,8 @@ corner k is the intersection of sides k-1 and k.
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
+from functools import partial
 from typing import Any
 
 import numpy as np
@@ -35,14 +31,16 @@ from artcal_ros.core.detect.plumb import estimate_division, lens_bend
 from artcal_ros.core.detect.profiles import coarse_offsets, gather_samples
 from artcal_ros.core.detect.sides import (
     SideModel,
+    far_cells,
     intersect_sides,
     module_geometry_at,
+    neighbour_lines,
     side_frames,
 )
-from artcal_ros.core.detect.step_model import far_cells, fit_step_model
+from artcal_ros.core.detect.step_model import StepSamples, fit_step_model
 from artcal_ros.core.homography import shortest_sides
 
-__all__ = ["EdgeFit", "refine_quads", "same_edges"]
+__all__ = ["EdgeFit", "EdgeFitSettings", "ProbeFit", "refine_quads", "same_edges"]
 
 _STEP = 0.25  # profile sample spacing, pixels
 # the blurred-step fit: Gauss-Newton steps of a side that starts from its frame's blur,
@@ -74,6 +72,74 @@ class EdgeFit:
     lens: Lens | None = None
 
 
+@dataclass(frozen=True)
+class EdgeFitSettings:
+    """How :func:`refine_quads` fits the sides of one call's quads.
+
+    Attributes:
+        bits: code cells per marker side (the border adds two modules).
+        margin_px: profiles closer than this to a corner are skipped (the other side's
+            blur reaches there), and samples inside the border stay this far inside both
+            neighbouring sides, pixels.
+        curve_min_px: sides at least this long may be fitted with a parabola (kept only
+            where its curvature is significant), pixels.
+        allow_curvature: False fits straight lines only (the image is undistorted, or a
+            camera model handles distortion).
+        passes: re-centred passes of the first model fit.
+        quiet_modules: width of the quiet zone outside the border, modules.
+        beyond_modules: how far past a known outer edge the window reaches, modules.
+        max_profiles: most profiles per side (long sides are sampled sparser).
+        censor_at: saturation level of the linear image: samples at or above it are
+            censored in the model fit (None: none are).
+    """
+
+    bits: int
+    margin_px: float = 1.5
+    curve_min_px: float = 60.0
+    allow_curvature: bool = True
+    passes: int = 2
+    quiet_modules: float = 1.0
+    beyond_modules: float = 1.0
+    max_profiles: int = 40
+    censor_at: float | None = None
+
+
+@dataclass(frozen=True)
+class BorderCells:
+    """What the board prints next to each side's border, from the decoded ids.
+
+    Attributes:
+        inner_same: (M, 4, rows, bits) bool or None: per side, the code cells of the first
+            rows behind the border (in side order) that have the border's colour; the model
+            fit models the code's edges from them (without: its window stops short of them).
+        outer_same: (M, 4) bool or None: per side, the board has a known edge back to the
+            border's colour where the quiet zone ends (the next tile of a mixed board); the
+            fit models it and reaches ``beyond_modules`` past it (without: stops short).
+    """
+
+    inner_same: np.ndarray | None = None
+    outer_same: np.ndarray | None = None
+
+
+@dataclass(frozen=True)
+class SideLayout:
+    """Where each side's profiles lie (S = 4 M sides; see :mod:`.sides`).
+
+    Attributes:
+        quads: (M, 4, 2) the quads the sides were laid out from, pixels.
+        a, u, n: (S, 2) each side's start (pixels), unit direction and outward unit normal.
+        t: (S, K) the profiles' positions along their side, pixels.
+        present: (S, K) bool, the profiles that exist (sides have up to K).
+    """
+
+    quads: np.ndarray
+    a: np.ndarray
+    u: np.ndarray
+    n: np.ndarray
+    t: np.ndarray
+    present: np.ndarray
+
+
 def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bits: int, *,
                  margin_px: float = 1.5, curve_min_px: float = 60.0,
                  allow_curvature: bool = True, passes: int = 2,
@@ -91,37 +157,16 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         quads: (M, 4, 2) float64, approximate corners (within ~1.5 px), pixels.
         dark_inside: (M,) bool, True where the marker's border is darker than its
             surroundings (black-on-white).
-        bits: code cells per side (the border adds two modules).
-        margin_px: profiles closer than this to a corner are skipped (the other
-            side's blur reaches there).
-        curve_min_px: sides at least this long may be fitted with a parabola
-            (kept only where its curvature is significant).
-        allow_curvature: False fits straight lines only (use it when the image
-            has been undistorted or a camera model handles distortion).
-        passes: re-centered passes of the model fit.
+        bits, margin_px, curve_min_px, allow_curvature, passes, quiet_modules,
+            beyond_modules, max_profiles, censor_at: see :class:`EdgeFitSettings`.
         lens: optional lens model; every side is then bent as the lens bends a
             straight edge, and only its offset and angle are fitted.
-        inner_same: optional (M, 4, rows, bits) bool (see
-            :func:`~artcal_ros.core.detect.patterns.inner_border_cells`): per side,
-            the code cells of the first rows behind the border (in side order)
-            that have the border's colour. The model fit uses them to model the
-            code's edges behind the border; without them the window stops short
-            of the code.
-        quiet_modules: width of the quiet zone outside the border, in modules.
-        outer_same: optional (M, 4) bool, per side: the board has a known edge back
-            to the border's colour at the quiet zone's end (the neighbouring tile
-            of a mixed board). The model fit then models that edge and reaches up
-            to ``beyond_modules`` past it; without it the window stops short of
-            the quiet zone's end.
-        beyond_modules: how far past a known outer edge the window reaches, modules.
-        max_profiles: most profiles per side (long sides are sampled sparser).
+        inner_same, outer_same: see :class:`BorderCells` (from
+            :func:`~artcal_ros.core.detect.patterns.inner_border_cells` and ``outer_neighbours``).
         lens_pool: evidence about the lens from earlier frames of the same camera
             (used and extended when the lens is estimated here).
-        tone_probe: optional ``tone_probe(probe_fit)``, called with a :class:`ProbeFit`
-            after every pass's fit; the last call is the final fit's (see
-            :func:`~artcal_ros.core.detect.tone.probe_costs`).
-        censor_at: optional saturation level of ``lin``: saturated samples are censored
-            in the model fit (see :func:`~artcal_ros.core.detect.step_model.fit_step_model`).
+        tone_probe: optional, called with a :class:`ProbeFit` after every pass's fit; the
+            last call is the final fit's (see :func:`~artcal_ros.core.detect.tone.probe_costs`).
 
     Returns:
         the :class:`EdgeFit`.
@@ -129,6 +174,11 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
     M = len(quads)
     if M == 0:
         return EdgeFit(np.zeros((0, 4, 2)), np.zeros((0, 4)), np.zeros(0, dtype=bool))
+    settings = EdgeFitSettings(bits, margin_px=margin_px, curve_min_px=curve_min_px,
+                               allow_curvature=allow_curvature, passes=passes,
+                               quiet_modules=quiet_modules, beyond_modules=beyond_modules,
+                               max_profiles=max_profiles, censor_at=censor_at)
+    cells = BorderCells(inner_same, outer_same)
     quads = np.asarray(quads, dtype=np.float64)
     lin = np.asarray(lin, dtype=np.float32)
     sign = np.repeat(np.where(dark_inside, 1.0, -1.0), 4)
@@ -138,19 +188,17 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
     inward = np.where(sign > 0, 0.0, 1.5)
     _, _, _, length0 = side_frames(quads)
     reach = np.minimum(0.45 * length0 / (bits + 2), 4.0)
-    model, t, present, a, u, n = _coarse_lines(lin, quads, sign, -reach - inward,
-                                               reach + 1.5 - inward, margin_px,
-                                               max_profiles)
+    model, sides = _coarse_lines(lin, quads, sign, -reach - inward, reach + 1.5 - inward,
+                                 settings)
     # the profiles, the windows and the along-side margins are then laid out again
     # from the quad those lines give: the quad finder's corners can be a pixel or two
     # off, which puts the margins (and the model's code cells) in the wrong place
-    coarse, _ = intersect_sides(model, a, u, n, M)
+    coarse, _ = intersect_sides(model, sides.a, sides.u, sides.n, M)
     quads = np.where(same_edges(coarse, quads)[:, None, None], coarse, quads)
-    model, t, present, a, u, n = _coarse_lines(lin, quads, sign, np.full(4 * M, -1.0),
-                                               np.full(4 * M, 1.0), margin_px, max_profiles)
-    length = model.length
-    S = len(a)
-    order = np.where(allow_curvature & (length >= curve_min_px), 3, 2)
+    model, sides = _coarse_lines(lin, quads, sign, np.full(4 * M, -1.0), np.full(4 * M, 1.0),
+                                 settings)
+    S = len(sides.a)
+    order = np.where(allow_curvature & (model.length >= curve_min_px), 3, 2)
     model.order = order
 
     # lines (parabolas on long sides when curvature is allowed); then, with a lens
@@ -160,26 +208,23 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
     # edge beyond a narrow quiet zone waits for the lens-aware pass below.
     used_lens: Lens | None = lens
     later = lens is None and allow_curvature
-    fit_blur = _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same,
-                             quiet_modules, passes, order, None, margin_px,
-                             None if later else outer_same, beyond_modules,
-                             tone_probe=tone_probe, censor_at=censor_at)
+    fit_blur = _model_passes(lin, sides, model, settings,
+                             replace(cells, outer_same=None) if later else cells,
+                             passes=passes, fit_order=order, tone_probe=tone_probe)
     if later:
-        used_lens = estimate_division(model, quads, t, present, lin.shape, pool=lens_pool)
+        used_lens = estimate_division(model, quads, sides.t, sides.present, lin.shape,
+                                      pool=lens_pool)
     if used_lens is not None:
         model.order = np.full(S, 3)
-        model.coef[:, 2] = lens_bend(used_lens, a, u, n, length)
-        _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same,
-                      quiet_modules, 1, np.full(S, 2), used_lens, margin_px, outer_same,
-                      beyond_modules, fit_blur, tone_probe=tone_probe, censor_at=censor_at)
+        model.coef[:, 2] = lens_bend(used_lens, sides.a, sides.u, sides.n, model.length)
+        _model_passes(lin, sides, model, settings, cells, passes=1, fit_order=np.full(S, 2),
+                      lens=used_lens, start_blur=fit_blur, tone_probe=tone_probe)
     else:
         _drop_flat_parabolas(model)
         if later and outer_same is not None:
-            _model_passes(lin, quads, a, u, n, t, present, model, bits, inner_same,
-                          quiet_modules, 1, model.order, None, margin_px, outer_same,
-                          beyond_modules, fit_blur, tone_probe=tone_probe,
-                          censor_at=censor_at)
-    corners, sigma = intersect_sides(model, a, u, n, M)
+            _model_passes(lin, sides, model, settings, cells, passes=1,
+                          fit_order=model.order, start_blur=fit_blur, tone_probe=tone_probe)
+    corners, sigma = intersect_sides(model, sides.a, sides.u, sides.n, M)
     side_ok = model.count >= 4
     ok = side_ok.reshape(M, 4).all(axis=1) & np.isfinite(corners).all(axis=(1, 2))
     return EdgeFit(corners, sigma, ok, used_lens)
@@ -201,25 +246,23 @@ def same_edges(new: np.ndarray, old: np.ndarray) -> np.ndarray:
 
 
 def _coarse_lines(lin: np.ndarray, quads: np.ndarray, sign: np.ndarray, lo: np.ndarray,
-                  hi: np.ndarray, margin_px: float, max_profiles: int
-                  ) -> tuple[SideModel, np.ndarray, np.ndarray, np.ndarray, np.ndarray,
-                             np.ndarray]:
+                  hi: np.ndarray, settings: EdgeFitSettings) -> tuple[SideModel, SideLayout]:
     """Straight edge lines from the strongest gradient within [lo, hi] of each quad side.
 
     Also lays out the along-side profile positions: the same count K for every
-    side (padded), ``margin_px`` clear of the corners.
+    side (padded), ``settings.margin_px`` clear of the corners.
 
     Args:
         lin: (H, W) linear intensity image.
         quads: (M, 4, 2) approximate corners, pixels.
         sign: (S,) +1 where intensity rises outward (dark border), -1 where it falls.
         lo, hi: (S,) search window along each side's normal, pixels.
-        margin_px: along-side clearance from the corners, pixels.
-        max_profiles: most profiles per side.
+        settings: the fit's settings (``margin_px``, ``max_profiles``).
 
     Returns:
-        the line model, t (S, K), present (S, K), and the side frames a, u, n.
+        the line model and the sides' layout.
     """
+    margin_px, max_profiles = settings.margin_px, settings.max_profiles
     a, u, n, length = side_frames(quads)
     usable = np.maximum(length - 2.0 * margin_px, 0.0)
     k_side = np.clip(np.round(usable).astype(np.intp), 0, max_profiles)
@@ -235,7 +278,7 @@ def _coarse_lines(lin: np.ndarray, quads: np.ndarray, sign: np.ndarray, lo: np.n
     offsets: np.ndarray = np.arange(first, last + 1e-9, 2 * _STEP)
     s_edge, valid = coarse_offsets(lin, a, u, n, tc, offsets, sign, lo, hi)
     model.fit(tc, s_edge, valid & pc, min_sigma_px=0.05, reject_sigmas=3.0)
-    return model, t, present, a, u, n
+    return model, SideLayout(quads, a, u, n, t, present)
 
 
 def _drop_flat_parabolas(model: SideModel) -> None:
@@ -252,41 +295,36 @@ def _drop_flat_parabolas(model: SideModel) -> None:
         model.cov[~keep, :, 2] = 0.0
 
 
-def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarray,
-                  n: np.ndarray, t: np.ndarray, present: np.ndarray, model: SideModel,
-                  bits: int, inner_same: np.ndarray | None,
-                  quiet_modules: float, passes: int, fit_order: np.ndarray,
-                  lens: Lens | None = None,
-                  corner_clear: float = 1.5, outer_same: np.ndarray | None = None,
-                  beyond_modules: float = 1.0, start_blur: np.ndarray | None = None,
-                  tone_probe: Callable[..., None] | None = None,
-                  censor_at: float | None = None) -> np.ndarray:
+def _model_passes(lin: np.ndarray, sides: SideLayout, model: SideModel,
+                  settings: EdgeFitSettings, cells: BorderCells, *, passes: int,
+                  fit_order: np.ndarray, lens: Lens | None = None,
+                  start_blur: np.ndarray | None = None,
+                  tone_probe: Callable[[ProbeFit], None] | None = None) -> np.ndarray:
     """Blurred-step model fits (see :mod:`~artcal_ros.core.detect.step_model`); updates ``model``.
 
-    ``fit_order`` (S,) says per side whether the parabola term is free (3) or held
-    at its current value (2: a straight line, or a lens-given bend). Samples inside
-    the border must stay ``corner_clear`` pixels inside both neighbouring sides:
-    near an acute corner (a steeply tilted marker) a cut straight inward from the
-    side would otherwise leave the marker through its neighbour.
+    Samples inside the border stay ``settings.margin_px`` inside both neighbouring sides:
+    near an acute corner (a steeply tilted marker) a cut straight inward from the side
+    would otherwise leave the marker through its neighbour.
 
     Args:
         lin: (H, W) float32 linear intensity image.
-        quads: (M, 4, 2) the quads the sides were laid out from (fallback corners), pixels.
-        a, u, n: (S, 2) side frames; t, present: (S, K) profile positions and mask.
+        sides: where the profiles lie (its quads are the fallback corners).
         model: the side model to refine (its coefficients are the start).
-        bits, inner_same, quiet_modules, outer_same, beyond_modules: as for
-            :func:`refine_quads`.
-        passes: model fits, each re-centered on the previous one.
-        fit_order: (S,) see above.
+        settings, cells: as :func:`refine_quads` was given them.
+        passes: model fits, each re-centred on the previous one.
+        fit_order: (S,) int, per side: the parabola term free (3) or held at its current
+            value (2: a straight line, or a lens-given bend).
         lens: optional lens (places the code cells along each side).
-        corner_clear: see above, pixels.
         start_blur: (S,) the blur the model fit starts from (an earlier pass's), pixels;
             without, the frame's blur from a pilot fit of every 8th side.
-        tone_probe, censor_at: see :func:`refine_quads`.
+        tone_probe: see :func:`refine_quads`.
 
     Returns:
         (S,) the fitted blur, pixels.
     """
+    a, u, n, t, present = sides.a, sides.u, sides.n, sides.t, sides.present
+    bits, quiet_modules = settings.bits, settings.quiet_modules
+    inner_same, outer_same = cells.inner_same, cells.outer_same
     S = t.shape[0]
     M = S // 4
     blur = np.full(S, 0.8)  # along the side, for the code cells
@@ -294,7 +332,7 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
     for _ in range(max(passes, 1)):
         corners, _ = intersect_sides(model, a, u, n, M)
         bad = ~np.isfinite(corners).all(axis=(1, 2))
-        corners[bad] = quads[bad]
+        corners[bad] = sides.quads[bad]
         s0 = model.offset(t)
         base = a[:, None, :] + t[..., None] * u[:, None, :] + s0[..., None] * n[:, None, :]
         _, m_px = module_geometry_at(corners, base.reshape(-1, 2),
@@ -310,15 +348,15 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
         known = None
         if outer_same is not None:
             known = np.asarray(outer_same, bool).reshape(S)
-            reach = np.clip((quiet_modules + beyond_modules) * m_med - 1.2, 1.5, 5.0)
+            reach = np.clip((quiet_modules + settings.beyond_modules) * m_med - 1.2, 1.5, 5.0)
             outer = np.where(known, np.maximum(reach, outer), outer)
         # samples: the pixels nearest a grid of points along and across each side (raw
         # values: interpolation would add its own, phase-dependent edge shifts)
         span = (-int(np.ceil(inner.max())), int(np.ceil(outer.max())))
-        samples, basis, sid, used = gather_samples(
+        read, basis, sid, used = gather_samples(
             lin, a, u, n, t, present, model.coef, model.length, model.order >= 3, span, inner,
-            outer, _neighbour_lines(corners), corner_clear)
-        px_c, py_c, _, s_c, values, rel = samples
+            outer, neighbour_lines(corners), settings.margin_px)
+        px_c, py_c, _, s_c, values, rel = read
         pts_c = np.stack([px_c, py_c], axis=-1)    # (the border's width places the code)
         along, m_s = module_geometry_at(corners, pts_c, sid, n, bits, lens, offset=rel)
         # (a mixed board's known edge beyond the quiet zone: better by the sample's width)
@@ -329,36 +367,35 @@ def _model_passes(lin: np.ndarray, quads: np.ndarray, a: np.ndarray, u: np.ndarr
                             blur * (bits + 2) / model.length)
         else:
             far = np.zeros((len(sid), 1), dtype=np.float32)
-        common: dict[str, Any] = dict(
+        samples = StepSamples(
             s=s_c, side=sid, n_sides=S, basis=basis, far=far, module_px=m_s,
-            fit_order=fit_order, normal=n, tol_px=_FIT_TOL_PX,
+            fit_order=fit_order, normal=n,
             outer=None if known is None else known[sid].astype(np.float32),
-            quiet_px=None if known is None else quiet_modules * quiet_m, censor_at=censor_at)
-
-        def fit(vals: np.ndarray = values, coef0: np.ndarray = model.coef,
-                common: dict[str, Any] = common,
-                **kw: Any) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-            return fit_step_model(vals, coef0=coef0, **common, **kw)
+            quiet_px=None if known is None else quiet_modules * quiet_m)
+        fit = partial(fit_step_model, values, samples, tol_px=_FIT_TOL_PX,
+                      censor_at=settings.censor_at)
 
         if fit_blur is None:
             # the frame's blur from a few sides first: the others then start close to
             # theirs (blur hardly varies across a frame; 0.6 px is far from a sharp
             # edge's 0.03) and need a few steps, not 5 - 8
             few = np.flatnonzero(used > 0)[::_PILOT_EVERY]
-            pilot = fit(blur0=np.full(S, 0.6), iterations=_PILOT_STEPS, sides=few)[2]
+            pilot = fit(coef0=model.coef, blur0=np.full(S, 0.6), iterations=_PILOT_STEPS,
+                        sides=few)[2]
             fit_blur = np.full(S, float(np.median(pilot[few])) if len(few) else 0.6)
         contrast = np.zeros(S)
-        coef, cov, fit_blur = fit(blur0=fit_blur, iterations=_FIT_STEPS, contrast_out=contrast)
-        if censor_at is not None and rows:
+        coef, cov, fit_blur = fit(coef0=model.coef, blur0=fit_blur, iterations=_FIT_STEPS,
+                                  contrast_out=contrast)
+        if settings.censor_at is not None and rows:
             # (only sides that are clipped: a frame may be clipped away from the board)
-            clipped = np.bincount(sid, weights=values >= censor_at, minlength=S) >= 3
+            clipped = np.bincount(sid, weights=values >= settings.censor_at, minlength=S) >= 3
             coef, cov, fit_blur = _refit_lone_edges(fit, coef, cov, fit_blur, contrast,
                                                     np.asarray(inner_same, bool),
                                                     used * clipped)
         if tone_probe is not None:
             few = np.flatnonzero(used > 0)[::_PILOT_EVERY]
             if len(few):
-                tone_probe(ProbeFit(common, values, few, coef, fit_blur))
+                tone_probe(ProbeFit(samples, values, few, coef, fit_blur, settings.censor_at))
         blur = fit_blur
         model.coef = coef
         model.cov = cov
@@ -378,20 +415,16 @@ def _refit_lone_edges(fit: Callable[..., tuple[np.ndarray, np.ndarray, np.ndarra
                       ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Clipped sides fitted again with the blur and contrast the well-placed ones show.
 
-    With the paper clipped, a side sees the unclipped tails of its transitions only. A
-    side with about as many code cells of the other colour behind its border as of its
-    own shows two: the border's edge and, one module further in, the code cells' edge,
-    with the same blur and contrast, which pins both down. One with (almost) only its
-    own colour behind shows one tail, which cannot separate its position from its blur
-    and hidden contrast; one with (almost) only the other colour has its border eaten
-    from both sides, and its dark core no longer reaches the ink. So every clipped side
-    is fitted again holding the blur at the median of the frame's two-transition sides
-    (one lens, one focus) and the contrast at the median of its marker's (one paper, one
-    light; the frame's when the marker has none): only its position and dark level are
-    left free, and the four sides of a marker are placed alike.
+    With the paper clipped a side sees only the unclipped tails of its transitions. One
+    with code cells of both colours behind its border shows two (border and code edge,
+    same blur and contrast), which pins both down; one with (almost) a single colour
+    behind cannot. Every clipped side is fitted again with the blur held at the median of
+    the frame's two-transition sides (one focus) and the contrast at its marker's (one
+    paper, one light; the frame's when the marker has none): only position and dark
+    level stay free, so a marker's four sides are placed alike.
 
     Args:
-        fit: the pass's fit (``fit(**kw)``, see :func:`_model_passes`).
+        fit: the pass's fit (``fit(coef0=, **kw)``, see :func:`_model_passes`).
         coef, cov, blur, contrast: (S, 3), (S, 3, 3), (S,), (S,) the censored fit.
         inner_same: (M, 4, rows, bits) bool, see :func:`refine_quads`.
         used: (S,) samples each side had (0: the side takes no part).
@@ -423,75 +456,38 @@ def _refit_lone_edges(fit: Callable[..., tuple[np.ndarray, np.ndarray, np.ndarra
     return coef, cov, blur
 
 
-# the step model's per-sample inputs (the others are per side)
-_PER_SAMPLE = ("s", "side", "basis", "far", "module_px", "outer", "quiet_px")
-_PER_SIDE = ("fit_order", "normal")
-
-
 @dataclass(frozen=True)
 class ProbeFit:
     """A pass's final step-model fit, kept so a tone probe can re-fit some of its sides.
 
     Attributes:
-        common: the fit's inputs other than the values (:func:`fit_step_model`'s keywords).
+        samples: the fit's samples (N of them).
         values: (N,) the samples' linear values.
         sides: (F,) int, the sides a probe may re-fit (every 8th fitted side).
-        coef, blur: (S, 3), (S,) the fit.
+        coef, blur: (S, 3), (S,) the fit, pixels.
+        censor_at: the fit's saturation level (None: nothing censored).
     """
 
-    common: dict[str, Any]
+    samples: StepSamples
     values: np.ndarray
     sides: np.ndarray
     coef: np.ndarray
     blur: np.ndarray
+    censor_at: float | None = None
 
     def subset(self, sides: np.ndarray, copies: int = 1
                ) -> tuple[Callable[..., None], np.ndarray]:
-        """``fit_values(values, **kw)`` on ``copies`` copies of only ``sides``' samples,
-        and those samples' values (one copy).
+        """``fit_values(values, **kw)`` on ``copies`` copies of only ``sides``' samples
+        (:meth:`StepSamples.subset`; ``values``, ``coef0``, ``blur0`` and ``cost_out``
+        copy-major), and those samples' values (one copy).
 
-        The copies are one fit problem of ``copies * F`` sides (copy c's side f is
-        side ``c F + f``; ``values``, ``coef0``, ``blur0`` and ``cost_out`` come in that
-        order), so a probe of several curves is one call of the compiled fit, and the
-        re-fits touch none of the frame's other samples.
+        A probe of several curves is then one call of the compiled fit, and the re-fits
+        touch none of the frame's other samples.
         """
-        # the samples are ordered by side: each side's are one run
-        side = np.asarray(self.common["side"])
-        sides = np.asarray(sides)
-        lo = np.searchsorted(side, sides)
-        hi = np.searchsorted(side, sides, side="right")
-        keep = np.concatenate([np.arange(a, b) for a, b in zip(lo, hi, strict=True)]
-                              + [np.zeros(0, np.intp)])
-        f = len(sides)
-        local = np.repeat(np.arange(f), hi - lo)   # the kept samples' side, renumbered
-        sub: dict[str, Any] = {}
-        for k, v in self.common.items():
-            if k == "side":
-                sub[k] = np.concatenate([local + c * f for c in range(copies)])
-            elif k in _PER_SAMPLE and v is not None:
-                part = np.asarray(v)[keep]
-                sub[k] = np.concatenate([part] * copies)
-            elif k in _PER_SIDE:
-                sub[k] = np.concatenate([np.asarray(v)[sides]] * copies)
-            elif k == "n_sides":
-                sub[k] = copies * f
-            else:
-                sub[k] = v
+        sub, keep = self.samples.subset(sides, copies)
 
         def fit_values(values: np.ndarray, **kw: Any) -> None:
-            fit_step_model(values, iterations=_PROBE_STEPS, **sub, **kw)
+            fit_step_model(values, sub, iterations=_PROBE_STEPS, tol_px=_FIT_TOL_PX,
+                           censor_at=self.censor_at, **kw)
 
         return fit_values, self.values[keep]
-
-
-def _neighbour_lines(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """A point (S, 2, 2) on, and the inward normal (S, 2, 2) of, each side's two neighbours.
-
-    Index 0 is the previous side, 1 the next one, of the marker's quad (M, 4, 2).
-    """
-    start, _, outward, _ = side_frames(corners)
-    M = len(corners)
-    start, inward = start.reshape(M, 4, 2), -outward.reshape(M, 4, 2)
-    p0 = np.stack([np.roll(start, -shift, axis=1).reshape(4 * M, 2) for shift in (-1, 1)], 1)
-    nin = np.stack([np.roll(inward, -shift, axis=1).reshape(4 * M, 2) for shift in (-1, 1)], 1)
-    return p0, nin

@@ -1,4 +1,5 @@
-"""The geometry of marker sides: side frames, the fitted edge curve of a side, corners.
+"""The geometry of marker sides: side frames, the fitted edge curve of a side, corners, and
+the code cells along a side.
 
 All arrays are batched over the S = 4 M sides of M markers; side k of a marker
 runs from its corner k to corner k+1 (TL->TR, TR->BR, BR->BL, BL->TL), so
@@ -16,6 +17,7 @@ from numba import njit
 
 from artcal_ros.core.detect.lens import Lens
 from artcal_ros.core.detect.linalg import solve, sort_small
+from artcal_ros.core.detect.step_model import norm_cdf_pdf
 from artcal_ros.core.detect.workers import run_all, split_even
 from artcal_ros.core.homography import module_homographies
 
@@ -40,6 +42,19 @@ def side_frames(quads: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, 
     flip = np.einsum("ij,ij->i", mid - center, n) < 0
     n[flip] *= -1.0
     return a, u, n, length
+
+
+def neighbour_lines(corners: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """A point (S, 2, 2) on, and the inward normal (S, 2, 2) of, each side's two neighbours.
+
+    Index 0 is the previous side, 1 the next one, of the marker's quad (M, 4, 2).
+    """
+    start, _, outward, _ = side_frames(corners)
+    M = len(corners)
+    start, inward = start.reshape(M, 4, 2), -outward.reshape(M, 4, 2)
+    p0 = np.stack([np.roll(start, -shift, axis=1).reshape(4 * M, 2) for shift in (-1, 1)], 1)
+    nin = np.stack([np.roll(inward, -shift, axis=1).reshape(4 * M, 2) for shift in (-1, 1)], 1)
+    return p0, nin
 
 
 def tau_basis(t: np.ndarray, length: np.ndarray, curved: np.ndarray) -> np.ndarray:
@@ -416,3 +431,55 @@ def _apply(H: np.ndarray, x: float, y: float) -> tuple[float, float]:
     """A homography H (3, 3) applied to one point."""
     w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
     return (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / w, (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / w
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def _far_cells(along: np.ndarray, side: np.ndarray, same: np.ndarray, blur_modules: np.ndarray,
+               out: np.ndarray) -> None:
+    """Kernel of :func:`far_cells`, into out (N, R) for the points given (a run of them)."""
+    bits = same.shape[2]
+    for i in range(len(along)):
+        k = side[i]
+        w = max(blur_modules[k], 1e-3)
+        for r in range(same.shape[1]):
+            # sum over cells j of other_j (Phi(x - (j+1)) - Phi(x - (j+2))), regrouped by
+            # boundary: only the boundaries where the colour changes need a CDF
+            acc = 0.0
+            before = 0.0  # the border itself: its own colour
+            for j in range(bits + 1):
+                other = 0.0 if j == bits or same[k, r, j] else 1.0
+                if other != before:
+                    acc += (other - before) * norm_cdf_pdf((along[i] - (j + 1)) / w)[0]
+                    before = other
+            out[i, r] = acc
+
+
+def far_cells(along: np.ndarray, side: np.ndarray, same: np.ndarray,
+              blur_modules: np.ndarray) -> np.ndarray:
+    """(N, R) share of the other colour in each of R code rows behind the border, blurred along it.
+
+    Gaussian blur is separable, so behind a straight border the code cells'
+    contribution at along-side position x is the sum over cells of the other
+    colour of ``Phi((x - x0) / w) - Phi((x - x1) / w)`` (the ``c`` of the
+    module docstring's model).
+
+    Args:
+        along: (N,) position of each sample along its side, modules (0 .. bits + 2).
+        side: (N,) int, each sample's side.
+        same: (S, R, bits) bool, per side and code row: the cells (in side order) that
+            share the border's colour.
+        blur_modules: (S,) blur of each side, in modules along the side.
+    """
+    along = np.ascontiguousarray(along, np.float64)
+    side = np.ascontiguousarray(side, np.intp)
+    same = np.ascontiguousarray(same, bool)
+    blur = np.ascontiguousarray(blur_modules, np.float64)
+    out = np.empty((len(along), same.shape[1]))
+
+    def part(run: np.ndarray) -> None:
+        sl = slice(int(run[0]), int(run[-1]) + 1)
+        _far_cells(along[sl], side[sl], same, blur, out[sl])
+
+    if len(along):
+        run_all(part, split_even(np.arange(len(along)), np.ones(len(along))))
+    return out

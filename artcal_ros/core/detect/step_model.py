@@ -25,6 +25,7 @@ one by one by damped Gauss-Newton (a compiled kernel).
 from __future__ import annotations
 
 import math
+from dataclasses import dataclass
 
 import numpy as np
 from numba import njit
@@ -348,10 +349,68 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
         cost_out[k] = band_cost / max(p[4] * p[4], 1e-12)
 
 
-def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides: int,
-                   basis: np.ndarray, coef0: np.ndarray, far: np.ndarray,
-                   module_px: np.ndarray, fit_order: np.ndarray, normal: np.ndarray, *,
-                   outer: np.ndarray | None = None, quiet_px: np.ndarray | None = None,
+@dataclass(frozen=True)
+class StepSamples:
+    """The samples of S sides the step model is fitted to, flat and each side's together.
+
+    Attributes:
+        s: (N,) offset of each sample from its side's chord along the outward normal, pixels.
+        side: (N,) int, the side (0 .. S-1) of each sample, non-decreasing.
+        n_sides: S.
+        basis: (N, 3) the edge polynomial's basis (1, tau, tau^2 - 1/3) at each sample.
+        far: (N, R) share of the other colour in code rows 1..R behind the border
+            (see :func:`~artcal_ros.core.detect.sides.far_cells`).
+        module_px: (N,) module width at each sample, pixels.
+        fit_order: (S,) int, 3 where the parabola term is free, 2 where it is held.
+        normal: (S, 2) each side's unit normal (sets the pixel's footprint across it).
+        outer: optional (N,) share of the border's colour beyond the quiet zone at each
+            sample (1 where the board puts a known edge there, 0 where not).
+        quiet_px: (N,) the quiet zone's width at each sample, pixels (with ``outer``).
+    """
+
+    s: np.ndarray
+    side: np.ndarray
+    n_sides: int
+    basis: np.ndarray
+    far: np.ndarray
+    module_px: np.ndarray
+    fit_order: np.ndarray
+    normal: np.ndarray
+    outer: np.ndarray | None = None
+    quiet_px: np.ndarray | None = None
+
+    def subset(self, sides: np.ndarray, copies: int = 1) -> tuple[StepSamples, np.ndarray]:
+        """Only the F ``sides``' samples, ``copies`` times over, and the kept samples' indices
+        (N',) into this set (one copy).
+
+        The copies are one set of ``copies * F`` sides: copy c's side f is side ``c F + f``.
+        """
+        side = np.asarray(self.side)
+        sides = np.asarray(sides)
+        lo = np.searchsorted(side, sides)
+        hi = np.searchsorted(side, sides, side="right")
+        keep = np.concatenate([np.arange(a, b) for a, b in zip(lo, hi, strict=True)]
+                              + [np.zeros(0, np.intp)])
+        f = len(sides)
+        local = np.repeat(np.arange(f), hi - lo)   # the kept samples' side, renumbered
+
+        def per_sample(v: np.ndarray) -> np.ndarray:
+            return np.concatenate([np.asarray(v)[keep]] * copies)
+
+        def per_side(v: np.ndarray) -> np.ndarray:
+            return np.concatenate([np.asarray(v)[sides]] * copies)
+
+        sub = StepSamples(
+            s=per_sample(self.s), side=np.concatenate([local + c * f for c in range(copies)]),
+            n_sides=copies * f, basis=per_sample(self.basis), far=per_sample(self.far),
+            module_px=per_sample(self.module_px), fit_order=per_side(self.fit_order),
+            normal=per_side(self.normal),
+            outer=None if self.outer is None else per_sample(self.outer),
+            quiet_px=None if self.quiet_px is None else per_sample(self.quiet_px))
+        return sub, keep
+
+
+def fit_step_model(values: np.ndarray, samples: StepSamples, coef0: np.ndarray, *,
                    samples_per_px: float = 1.0, iterations: int = 4,
                    blur0: np.ndarray | None = None, tol_px: float = 0.0,
                    sides: np.ndarray | None = None, cost_out: np.ndarray | None = None,
@@ -359,27 +418,13 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
                    hold_contrast: np.ndarray | None = None,
                    contrast_out: np.ndarray | None = None
                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
-    """Fit the blurred-step model (module docstring) to every side.
-
-    The N samples of all S sides come as flat arrays, each side's samples together
-    (``side`` non-decreasing); only the samples to use are passed. Each side is
-    solved on its own by damped Gauss-Newton (a compiled kernel).
+    """Fit the blurred-step model (module docstring) to every side, each on its own by
+    damped Gauss-Newton (a compiled kernel).
 
     Args:
         values: (N,) linear intensities of the samples.
-        s: (N,) their offsets along their side's outward normal from its chord, pixels.
-        side: (N,) int, the side (0 .. S-1) of each sample, non-decreasing.
-        n_sides: S.
-        basis: (N, 3) along-side polynomial basis (1, tau, tau^2 - 1/3) at each sample.
-        coef0: (S, 3) starting edge polynomial (offset of the edge from the chord).
-        far: (N, R) share of the other colour in code rows 1..R behind the border
-            (see :func:`far_cells`).
-        module_px: (N,) module width at each sample, pixels.
-        fit_order: (S,) 3 where the parabola term is free, 2 where it is held.
-        normal: (S, 2) each side's unit normal (sets the pixel's footprint across it).
-        outer: optional (N,) share of the border's colour beyond the quiet zone at
-            each sample (1 where the board puts a known edge there, 0 where not).
-        quiet_px: (N,) the quiet zone's width at each sample, pixels (with ``outer``).
+        samples: where the samples lie and what the board prints there.
+        coef0: (S, 3) starting edge polynomial (offset of the edge from the chord), pixels.
         samples_per_px: sample density along the normal (for the covariance: samples
             closer than a pixel are not independent).
         iterations: most Gauss-Newton steps.
@@ -389,20 +434,20 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
         sides: optional (F,) int, the sides to fit (the others keep ``coef0``, ``blur0``
             and a zero covariance).
         cost_out: optional (S,) filled with each fitted side's sum of squared residuals
-            across the edge's transition (see :func:`_normal_equations`), relative to
-            its squared contrast ``D ** 2``.
-        censor_at: optional saturation level (linear): samples at or above it are
-            censored (they count only where the model predicts less light), for
-            over-exposed frames whose paper clips.
+            across the edge's transition (see :func:`_normal_equations`) over ``D ** 2``.
+        censor_at: optional saturation level (linear): samples at or above it count only
+            where the model predicts less light (over-exposed frames whose paper clips).
         hold_blur: optional (S,) blur to hold a side at, pixels (0: fitted).
         hold_contrast: optional (S,) contrast ``D`` to hold a side at (NaN: fitted).
         contrast_out: optional (S,) filled with each fitted side's contrast ``D``.
 
     Returns:
-        coef (S, 3) edge polynomial, cov (S, 3, 3) its covariance, blur (S,) pixels
-        (the Gaussian part, beyond the pixel's own footprint).
+        coef (S, 3) edge polynomial, pixels; cov (S, 3, 3) its covariance, pixels^2; blur
+        (S,) pixels (the Gaussian part, beyond the pixel's own footprint).
     """
-    starts = np.searchsorted(np.asarray(side), np.arange(n_sides + 1)).astype(np.intp)
+    n_sides = samples.n_sides
+    starts = np.searchsorted(np.asarray(samples.side),
+                             np.arange(n_sides + 1)).astype(np.intp)
     f64 = np.float64
     none = np.zeros(0)
     which = np.arange(n_sides) if sides is None else np.ascontiguousarray(sides, np.intp)
@@ -410,12 +455,15 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
     coef = np.array(coef0, dtype=f64)
     cov = np.zeros((n_sides, 3, 3))
     blur = np.full(n_sides, 0.6) if blur0 is None else np.array(blur0, dtype=f64)
-    args = (np.ascontiguousarray(values, f64), np.ascontiguousarray(s, f64), starts,
-            np.ascontiguousarray(basis, f64), coef.copy(),
-            np.ascontiguousarray(far, f64), np.ascontiguousarray(module_px, f64),
-            np.ascontiguousarray(fit_order, np.intp), np.ascontiguousarray(normal, f64),
-            none if outer is None else np.ascontiguousarray(outer, f64),
-            none if quiet_px is None else np.ascontiguousarray(quiet_px, f64),
+    # the one place the samples and options become the kernel's arrays and scalars
+    args = (np.ascontiguousarray(values, f64), np.ascontiguousarray(samples.s, f64), starts,
+            np.ascontiguousarray(samples.basis, f64), coef.copy(),
+            np.ascontiguousarray(samples.far, f64),
+            np.ascontiguousarray(samples.module_px, f64),
+            np.ascontiguousarray(samples.fit_order, np.intp),
+            np.ascontiguousarray(samples.normal, f64),
+            none if samples.outer is None else np.ascontiguousarray(samples.outer, f64),
+            none if samples.quiet_px is None else np.ascontiguousarray(samples.quiet_px, f64),
             max(samples_per_px, 1.0), int(iterations), blur.copy(), float(tol_px),
             1e30 if censor_at is None else float(censor_at),
             np.zeros(n_sides) if hold_blur is None else np.ascontiguousarray(hold_blur, f64),
@@ -427,55 +475,3 @@ def fit_step_model(values: np.ndarray, s: np.ndarray, side: np.ndarray, n_sides:
     contrast = np.zeros(n_sides) if contrast_out is None else contrast_out
     run_all(lambda part: _fit_sides(*args, part, coef, cov, blur, costs, contrast), in_run)
     return coef, cov, blur
-
-
-@njit(cache=True, error_model="numpy", nogil=True)
-def _far_cells(along: np.ndarray, side: np.ndarray, same: np.ndarray, blur_modules: np.ndarray,
-               out: np.ndarray) -> None:
-    """Kernel of :func:`far_cells`, into out (N, R) for the points given (a run of them)."""
-    bits = same.shape[2]
-    for i in range(len(along)):
-        k = side[i]
-        w = max(blur_modules[k], 1e-3)
-        for r in range(same.shape[1]):
-            # sum over cells j of other_j (Phi(x - (j+1)) - Phi(x - (j+2))), regrouped by
-            # boundary: only the boundaries where the colour changes need a CDF
-            acc = 0.0
-            before = 0.0  # the border itself: its own colour
-            for j in range(bits + 1):
-                other = 0.0 if j == bits or same[k, r, j] else 1.0
-                if other != before:
-                    acc += (other - before) * norm_cdf_pdf((along[i] - (j + 1)) / w)[0]
-                    before = other
-            out[i, r] = acc
-
-
-def far_cells(along: np.ndarray, side: np.ndarray, same: np.ndarray,
-              blur_modules: np.ndarray) -> np.ndarray:
-    """(N, R) share of the other colour in each of R code rows behind the border, blurred along it.
-
-    Gaussian blur is separable, so behind a straight border the code cells'
-    contribution at along-side position x is the sum over cells of the other
-    colour of ``Phi((x - x0) / w) - Phi((x - x1) / w)`` (the ``c`` of the
-    module docstring's model).
-
-    Args:
-        along: (N,) position of each sample along its side, modules (0 .. bits + 2).
-        side: (N,) int, each sample's side.
-        same: (S, R, bits) bool, per side and code row: the cells (in side order) that
-            share the border's colour.
-        blur_modules: (S,) blur of each side, in modules along the side.
-    """
-    along = np.ascontiguousarray(along, np.float64)
-    side = np.ascontiguousarray(side, np.intp)
-    same = np.ascontiguousarray(same, bool)
-    blur = np.ascontiguousarray(blur_modules, np.float64)
-    out = np.empty((len(along), same.shape[1]))
-
-    def part(run: np.ndarray) -> None:
-        sl = slice(int(run[0]), int(run[-1]) + 1)
-        _far_cells(along[sl], side[sl], same, blur, out[sl])
-
-    if len(along):
-        run_all(part, split_even(np.arange(len(along)), np.ones(len(along))))
-    return out
