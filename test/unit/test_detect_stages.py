@@ -91,6 +91,35 @@ def test_refine_quads_recovers_perturbed_corners(scene, setup: str) -> None:
         assert fit.lens is None
 
 
+def test_probe_subset_refits_its_sides_as_the_whole_fit_does(scene) -> None:
+    """A tone probe's re-fit of a few sides on their own samples (two copies) gives what
+    the same fit of those sides among all of the frame's samples gives."""
+    from artcal_ros.core.detect.edges import ProbeFit
+    from artcal_ros.core.detect.step_model import fit_step_model
+
+    view, lin, use = scene
+    fits: list[ProbeFit] = []
+    refine_quads(lin, view.corners_px[use], np.ones(use.sum(), bool), BOARD.bits, passes=1,
+                 inner_same=inner_border_cells(BOARD, view.ids[use], rows=1),
+                 tone_probe=fits.append)
+    fit = fits[-1]
+    sides = fit.sides[:5]
+    whole = fit_step_model(fit.values, fit.samples, fit.coef, blur0=fit.blur, sides=sides,
+                           iterations=2)[0][sides]
+    fit_values, values = fit.subset(sides, copies=2)
+    assert len(values) == np.isin(fit.samples.side, sides).sum()
+    cost = np.zeros(10)
+    fit_values(np.concatenate([values, values]), coef0=np.tile(fit.coef[sides], (2, 1)),
+               blur0=np.tile(fit.blur[sides], 2), cost_out=cost)
+    assert (cost > 0).all()   # every copy of every side was fitted
+    sub, _ = fit.samples.subset(sides, copies=2)
+    again = fit_step_model(np.concatenate([values, values]), sub,
+                           np.tile(fit.coef[sides], (2, 1)), blur0=np.tile(fit.blur[sides], 2),
+                           iterations=2)[0]
+    np.testing.assert_array_equal(again[:5], whole)
+    np.testing.assert_array_equal(again[5:], whole)
+
+
 def test_refine_quads_of_nothing() -> None:
     fit = refine_quads(np.zeros((20, 20), np.float32), np.zeros((0, 4, 2)),
                        np.zeros(0, bool), BOARD.bits)
