@@ -7,6 +7,9 @@
     artcal calibrate IMAGE... --size 8x6 --square 0.108 --output camera.yaml   # a chessboard
     artcal calibrate IMAGE... --target april_6x6.yaml --output camera.yaml    # Kalibr's target
     artcal calibrate IMAGE... --params P --accept-weak --report DIR   # a weak set, solved anyway
+    artcal calibrate --camera left='l/*.png' --camera right='r/*.png' --params P --output-dir D
+    artcal calibrate --bag BAG --camera left=/left/image_raw --camera right=/right/image_raw \
+        --params P --output-dir D [--report DIR]       # a rig: cli/calibrate_rig.py
 
 The solve options are the parameters file's (``camera_model``, ``points``, ``max_views``,
 ``calibrate.*``), as for the calibrator node; the detection, solve, write and summary are
@@ -26,7 +29,6 @@ input.
 from __future__ import annotations
 
 import argparse
-import os
 import sys
 import time
 from collections.abc import Callable, Iterator
@@ -42,10 +44,12 @@ from artcal_ros.cli.calibrate_report import (
     write_refused_report,
     write_report,
 )
+from artcal_ros.cli.calibrate_rig import add_rig_arguments, run_rig
 from artcal_ros.cli.common import (
     add_board_arguments,
     add_params_arguments,
     board_overrides,
+    check_writable,
     params_from_args,
 )
 from artcal_ros.cli.progress import Progress
@@ -94,6 +98,7 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="deprecated: the same as --set calibrate.k_coefficients=3 "
                              "(plumb_bob: also estimate k3, for strong wide-angle distortion)")
     parser.add_argument("--quiet", action="store_true", help="no progress bar")
+    add_rig_arguments(parser)
 
 
 def _bag_topic(topics: dict[str, str], wanted: str | None, bag: str) -> str:
@@ -194,17 +199,6 @@ def _one_size(frames: Iterator[tuple[str, np.ndarray]],
         yield source, image
 
 
-def _check_writable(flag: str, path: str) -> None:
-    """Refuse, before any work, an output path whose nearest existing folder is no folder."""
-    parent = Path(path).expanduser().absolute().parent
-    while not parent.exists() and parent != parent.parent:
-        parent = parent.parent
-    if not parent.is_dir():
-        raise ParameterError(f"{flag} {path}: cannot write it: {parent} is not a directory")
-    if not os.access(parent, os.W_OK | os.X_OK):
-        raise ParameterError(f"{flag} {path}: cannot write it: {parent}: permission denied")
-
-
 def _k3_alias(args: argparse.Namespace, params: dict[str, Any]) -> dict[str, Any]:
     """The parameters with the deprecated ``--k3`` applied (calibrate.k_coefficients = 3)."""
     if not args.k3:
@@ -224,6 +218,8 @@ def run(args: argparse.Namespace) -> int:
     """Run the verb; see the module docstring for the exit status."""
     params = _k3_alias(args, params_from_args(args, board_overrides(args)))
     board = Board.from_params(params)
+    if args.camera or args.output_dir or args.intrinsics:
+        return run_rig(args, params, board)
     if bool(args.images) == bool(args.bag):
         raise ParameterError("give either image files or --bag BAG (not both, not neither)")
     if args.topic and not args.bag:
@@ -232,7 +228,7 @@ def run(args: argparse.Namespace) -> int:
         raise ParameterError(f"--max-views {args.max_views}: must be at least 3")
     for flag, path in (("--output", args.output), ("--report", args.report)):
         if path:
-            _check_writable(flag, path)
+            check_writable(flag, path)
 
     def say(msg: str) -> None:
         if not args.quiet:

@@ -3,6 +3,8 @@
 from __future__ import annotations
 
 import argparse
+import os
+from pathlib import Path
 from typing import Any
 
 from artcal_ros.core.board.dictionaries import predefined_code
@@ -165,3 +167,14 @@ def board_overrides(args: argparse.Namespace) -> dict[str, Any]:
     if target is not None:
         return target_params(target)
     return camera_calibration_overrides(args)
+
+
+def check_writable(flag: str, path: str) -> None:
+    """Refuse, before any work, an output path whose nearest existing folder is no folder."""
+    parent = Path(path).expanduser().absolute().parent
+    while not parent.exists() and parent != parent.parent:
+        parent = parent.parent
+    if not parent.is_dir():
+        raise ParameterError(f"{flag} {path}: cannot write it: {parent} is not a directory")
+    if not os.access(parent, os.W_OK | os.X_OK):
+        raise ParameterError(f"{flag} {path}: cannot write it: {parent}: permission denied")
