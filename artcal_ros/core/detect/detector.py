@@ -1,38 +1,22 @@
 """The detection pipeline: candidate quads, board-aware decoding, sub-pixel corners and centers.
 
-A chessboard goes to :mod:`artcal_ros.core.detect.chessboard` instead (no markers), a
-circle grid to :mod:`artcal_ros.core.detect.circles`; a
-ChArUco board runs the marker pipeline below with its markers, then
-:mod:`artcal_ros.core.detect.charuco` measures its corners from them.
+The stages of one image, in :meth:`Detector.detect`'s order:
 
-Pipeline for one image:
+1. candidates: quads and ids from OpenCV's ArUco detector on an 8-bit copy, the quads it
+   could not read decoded again against the board's own patterns (:mod:`.candidates`);
+   only the board's ids, of the board's polarity;
+2. exposure: whether the frame is clipped or partly saturated (:mod:`.exposure`);
+3. edges: every side fitted with a blurred-step model in linear light, bent by the lens
+   (given, or estimated and pooled over frames), intersected into corners (:mod:`.edges`);
+   the tone curve is probed on the same fits (:mod:`.tone`);
+4. verification: code, neighbours and sides re-read on the refined quad, so a wrong id
+   cannot reach the solver (:mod:`.verify`); a clipped frame's missing markers looked for
+   where the verified ones place them (:mod:`.grid_search`);
+5. centres, the diagonals' crossing through the lens (:mod:`.centers`), and the view's edge
+   shift removed from the corners (:mod:`.edge_shift`).
 
-1. Candidate quads and ids from OpenCV's ArUco detector (both polarities when the
-   board has white-on-black markers), run on an 8-bit, contrast-stretched copy.
-   The quads it found but could not read are decoded again against the board's
-   own patterns, blur-aware (:mod:`artcal_ros.core.detect.candidates`,
-   :mod:`artcal_ros.core.detect.decode`).
-2. Only ids on the configured board survive; duplicated ids are dropped.
-3. Each quad is refined from its border edges in linear intensity
-   (:mod:`artcal_ros.core.detect.edges`, :mod:`artcal_ros.core.detect.step_model`):
-   a blurred-step model fitted to the raw pixels across every side, sides bent
-   by the lens (given, or estimated from the edges and pooled over frames),
-   intersected into corners.
-4. Verification (:mod:`artcal_ros.core.detect.verify`): the border's polarity
-   must match the board, the code re-read on the refined quad must match the id
-   (at most 2 wrong cells; none for a marker without neighbours), and the marker
-   must sit where its image neighbours say it should on the board. A wrong id
-   cannot reach the solver. In an over-exposed frame the verified markers then
-   place the missing ones on the grid, and those whose code reads there are fitted
-   and checked too (:mod:`artcal_ros.core.detect.grid_search`).
-5. Centers (:mod:`artcal_ros.core.detect.centers`): the intersection of the
-   refined quad's diagonals (exact under a pinhole projection). With a lens
-   (given, or estimated and well determined) the corners are mapped to
-   undistorted pixels first and the center mapped
-   back; without one, the diagonals of the distorted quad are used, which is
-   off by second-order terms of the distortion across the marker (a few
-   hundredths of a pixel for 20 - 40 px markers near the corners of a strongly
-   distorted webcam image).
+A chessboard or circle grid goes to :mod:`.chessboard` or :mod:`.circles` instead; a ChArUco
+board runs the marker stages, then :mod:`.charuco` places its corners from the markers.
 
 Pixel convention: OpenCV's, the center of the top-left pixel is (0, 0).
 """
@@ -41,7 +25,7 @@ from __future__ import annotations
 
 from collections.abc import Mapping
 from dataclasses import dataclass, replace
-from typing import Any
+from typing import Any, NamedTuple
 
 import cv2
 import numpy as np
@@ -53,12 +37,7 @@ from artcal_ros.core.detect.centers import diagonal_centers
 from artcal_ros.core.detect.charuco import charuco_corners
 from artcal_ros.core.detect.chessboard import detect_chessboard
 from artcal_ros.core.detect.circles import detect_circles
-from artcal_ros.core.detect.edge_shift import (
-    compensate,
-    neighbourhood_shift_px,
-    robust_shift_px,
-    toward_neighbourhood,
-)
+from artcal_ros.core.detect.edge_shift import remove_view_shift
 from artcal_ros.core.detect.edges import EdgeFit, ProbeFit, refine_quads, same_edges
 from artcal_ros.core.detect.exposure import censor_level, dark_level, is_clipped, saturates
 from artcal_ros.core.detect.grid_search import grow
@@ -86,44 +65,36 @@ class DetectorConfig:
     """Tuning of :class:`Detector`; the defaults suit printed boards and ordinary cameras.
 
     Attributes:
-        gamma: exponent that maps encoded grey values to linear light
-            (``linear = (v / full_scale) ** gamma``): 2.2 for sRGB-like 8-bit
-            images, 1.0 for linear (e.g. raw 16-bit) data; 0 (the default)
-            estimates the tone curve from the images' edges
-            (:mod:`~artcal_ros.core.detect.tone`), pooled over the frames a
-            :class:`Detector` sees.
+        gamma: exponent from encoded grey to linear light (``(v / full_scale) ** gamma``):
+            2.2 for sRGB-like 8-bit images, 1.0 for linear data; 0 (the default) estimates
+            the tone curve from the edges (:mod:`.tone`), pooled over a Detector's frames.
         gamma_16bit: the same for 16-bit images (None: use ``gamma``).
         refine_edges: False keeps the quad finder's corners (for comparisons only).
-        margin_px: edge profiles closer than this to a corner are skipped.
-        curve_min_px: image sides at least this long are fitted as parabolas
-            (lens distortion bends them) when no camera model is given.
-        estimate_lens: without a camera model, estimate a one-parameter division
-            lens from those parabolas (plumb lines) and bend every side by it.
-        max_bit_errors: most code cells (of bits^2) that may disagree with the
-            id when a marker is supported by a neighbour.
-        max_bit_errors_isolated: the same for a marker no neighbour can vouch
-            for; None rejects isolated markers outright.
-        neighbour_tolerance: how far (in marker sides) a neighbour may sit from
-            where this marker's own homography puts it.
-        min_side_px: quads with a shorter side are ignored.
+        margin_px: edge profiles closer than this to a corner are skipped, pixels.
+        curve_min_px: without a camera model, image sides at least this long are fitted
+            as parabolas (lens distortion bends them), pixels.
+        estimate_lens: without a camera model, estimate a division lens from those
+            parabolas (plumb lines) and bend every side by it.
+        max_bit_errors: most code cells (of bits^2) that may disagree with the id of a
+            marker a neighbour supports.
+        max_bit_errors_isolated: the same for a marker no neighbour vouches for; None
+            rejects isolated markers.
+        neighbour_tolerance: how far (marker sides) a neighbour may sit from where this
+            marker's own homography puts it.
+        min_side_px: quads with a shorter side are ignored, pixels.
         code_rows: code rows behind the border modelled by the edge fit (1 or 2).
-        decode_rejected: decode the quads OpenCV could not read against the
-            board's own patterns (recovers markers under blur and clipping).
-        pool_lens: pool the lens estimate over the frames a :class:`Detector` sees
-            (one camera per detector; :meth:`Detector.reset_lens` forgets).
-        adaptive_window_max: largest adaptive-threshold window of the quad finder.
-        edge_shift: measure each view's edge shift from its markers' size against
-            their pitch and remove it from the corners
-            (:mod:`~artcal_ros.core.detect.edge_shift`); in a frame so over-exposed that
-            the ink reads above 0.35 of saturation, and whose sides scatter, also move
-            the corners toward the sides placed by the neighbours' centres
-            (``toward_neighbourhood``).
-        censor_clipped: in an over-exposed frame whose ink is still below 0.85 of
-            saturation, fit the edges with the saturated pixels as censored data (they
-            only say the light there reached full scale); see docs/tone.md.
-        grid_search: in an over-exposed frame, look for the markers the quad finder
-            missed where the verified ones place them on the board's grid
-            (:mod:`~artcal_ros.core.detect.grid_search`; marker grids only).
+        decode_rejected: decode the quads OpenCV could not read against the board's own
+            patterns (recovers markers under blur and clipping).
+        pool_lens: pool the lens estimate over a Detector's frames (one camera per
+            detector; :meth:`Detector.reset_lens` forgets).
+        adaptive_window_max: largest adaptive-threshold window of the quad finder, pixels.
+        edge_shift: remove each view's edge shift, measured from its markers' size against
+            their pitch (:mod:`.edge_shift`); in a far over-exposed frame whose sides
+            scatter, also move the corners toward the sides its neighbours place.
+        censor_clipped: in an over-exposed frame whose ink is below 0.85 of saturation,
+            fit the edges with the saturated pixels as censored data (docs/tone.md).
+        grid_search: in an over-exposed frame, look for the markers the quad finder missed
+            where the verified ones place them (:mod:`.grid_search`; marker grids only).
     """
 
     gamma: float = 0.0
@@ -159,23 +130,13 @@ class DetectorConfig:
             raise DetectionError("DetectorConfig.adaptive_window_max must be >= 3")
 
 
-# a view's edge shift is removed only beyond this over the markers read plus 2 sigma, px:
-# against truth the shift read from the centres errs by up to 0.011 px in close views of
-# 13 - 25 large markers (more than its sigma says; the centres' own errors) and by about
-# 0.001 px in views of 170, where a clean frame's true shift of 0.003 - 0.01 px is worth
-# removing
-_SHIFT_ERROR_PX = 0.3
-# a clipped frame's saturated samples are censored in the edge fit while its ink is
-# darker than this share of saturation (the paper then up to about 14 times over, for a
-# print of ordinary contrast). Set on the exposure sweep (bench.exposure): censoring
-# halves the centres' error or better where the ink reads 0.1 - 0.84, and makes it
-# worse at 0.9 - 0.93, where only a sliver of each edge's transition is left unclipped
+# a clipped frame's saturated samples are censored in the edge fit while its ink is darker
+# than this share of saturation; beyond it too little of each edge's transition is left
+# unclipped for censoring to help (bench.exposure)
 _CENSOR_BELOW = 0.85
-# a clipped frame's corners are moved toward the sides its neighbours place only once the
-# ink itself reads above this share of saturation (the paper about 5 times over or more),
-# where blooming eats into the edges. Below it the censored fit holds the edges, and the
-# scatter of the sides is the frame's noise: on realistic frames (JPEG, defocus, ink at
-# 0.1) the move made corners worse (seed 7340's 20-view calibration 0.031 -> 0.052 px)
+# a clipped frame's corners are moved toward the sides its neighbours place once its ink
+# reads above this share of saturation, where blooming eats into the edges; below it the
+# censored fit holds the edges and the sides' scatter is the frame's noise
 _PLACE_ABOVE = 0.35
 
 # most pilot sides a frame's tone probe re-fits per candidate curve
@@ -210,6 +171,57 @@ def _clear_of_edge(corners: np.ndarray, w: int, h: int, clear: float) -> np.ndar
     x, y = corners[..., 0], corners[..., 1]
     inside = (x >= clear) & (x <= w - 1 - clear) & (y >= clear) & (y <= h - 1 - clear)
     return np.asarray(inside.all(axis=1) & np.isfinite(corners).all(axis=(1, 2)))
+
+
+@dataclass(frozen=True)
+class _Frame:
+    """One image as the stages read it: grey as given (H, W), its 8-bit copy for the quad
+    finder, linear light through ``curve``; ``probing``: the frame's edges probe the tone
+    curve."""
+
+    gray: np.ndarray
+    gray8: np.ndarray
+    lin: np.ndarray
+    curve: ToneCurve
+    probing: bool
+    sharpness: float
+
+    @property
+    def size(self) -> tuple[int, int]:
+        """(width, height), pixels."""
+        return self.gray.shape[1], self.gray.shape[0]
+
+
+@dataclass(frozen=True)
+class _Exposure:
+    """A frame's exposure: clipped, its ink's level (share of saturation; 0 unless something
+    saturates), and whether the edge fit censors saturated samples."""
+
+    clipped: bool
+    ink: float
+    censor: bool
+
+
+class _Markers(NamedTuple):
+    """Markers between stages: ids (N,), corners (N, 4, 2) and their sigmas (N, 4), pixels."""
+
+    ids: np.ndarray
+    corners_px: np.ndarray
+    sigma_px: np.ndarray
+
+
+@dataclass(frozen=True)
+class _Edges:
+    """The edge stage's outcome: the frame (read through the tone curve the fit settled on),
+    the markers whose edges fit and their borders' darkness (N,), the lens the centres are
+    taken through, the one the sides were bent by, and the fit's saturation level."""
+
+    frame: _Frame
+    markers: _Markers
+    dark: np.ndarray
+    lens: Lens | None
+    fit_lens: Lens | None = None
+    censor_at: float | None = None
 
 
 class Detector:
@@ -298,57 +310,6 @@ class Detector:
         """(N,) bool: the board prints these markers with a dark border."""
         return np.array([not self.board.is_inverted(int(i)) for i in ids], bool)
 
-    def _remove_edge_shift(self, corners: np.ndarray, centers: np.ndarray, ids: np.ndarray,
-                           lens: Lens | None, place_sides: bool = False
-                           ) -> tuple[np.ndarray, float]:
-        """The corners with the view's edge shift removed, and the shift (NaN: unknown), px.
-
-        ``place_sides``: a far over-exposed frame; its corners are also moved toward the
-        sides its neighbours place (:func:`toward_neighbourhood`).
-
-        Measured and removed in undistorted pixels when a lens is known, so the
-        lens's change of scale between neighbours does not read as a shift.
-        """
-        m = len(ids)
-        q, c = corners, centers
-        if lens is not None and m:
-            q = lens.undistort(corners.reshape(-1, 2)).reshape(m, 4, 2)
-            c = lens.undistort(centers)
-        # each marker's shift against the centres around it (they do not move with it)
-        marker_shift = neighbourhood_shift_px(ids, q, c, self.board)
-        # light spreading into dark grows a white-bordered marker and shrinks a black one:
-        # on a mixed board each polarity has its own shift (reported: the black ones')
-        inverted = ~self._dark(ids)
-        shift, largest = float("nan"), 0.0
-        q_u, q = q, q.copy()
-        for group in (~inverted, inverted):
-            if not group.any():
-                continue
-            d, d_sd = robust_shift_px(marker_shift[group])
-            if not np.isfinite(d_sd):
-                continue
-            n_read = int(np.isfinite(marker_shift[group]).sum())
-            if abs(d) <= _SHIFT_ERROR_PX / n_read + 2.0 * d_sd:
-                d = 0.0     # not told apart from no shift: removing it would add error
-            # every side moves back along its normal (the centres were measured already)
-            q[group] = compensate(q[group], d)
-            largest = max(largest, abs(d))
-            if not np.isfinite(shift):
-                shift = d
-        if not np.isfinite(shift):
-            return corners, float("nan")
-        if lens is not None:
-            # the move, mapped back (the round trip of a point far out in a strong lens
-            # need not return it exactly: only the difference is taken)
-            moved = lens.distort(q.reshape(-1, 2)) - lens.distort(q_u.reshape(-1, 2))
-            q = corners + moved.reshape(m, 4, 2)
-            # a move the lens magnified beyond any shift's size is not one (a fold)
-            wild = ~(np.linalg.norm(q - corners, axis=-1) <= 4.0 * largest + 0.05).all(axis=1)
-            q[wild] = corners[wild]
-        if place_sides:
-            q = toward_neighbourhood(ids, corners, q, centers, self.board)
-        return q, shift
-
     def detect(self, image: np.ndarray, camera: CameraModel | HasCamera | None = None, *,
                source: str = "") -> Detections:
         """Detect the board's markers in one image.
@@ -365,79 +326,116 @@ class Detector:
             :class:`Detections` with ids, corners (N, 4, 2), centers (N, 2) and
             per-point sigmas, in pixels.
         """
+        frame = self._read(image)
+        if self._candidates is None:     # a chessboard or a circle grid: points only
+            return self._detect_points(frame, camera, source)
+        # 1. candidates: quads and ids of the board's markers
+        quads, ids = self._candidates.find(frame.gray8, frame.lin)
+        if len(ids) == 0:
+            return replace(Detections.empty(frame.size, source), sharpness=frame.sharpness)
+        quads, ids, dark = self._of_polarity(frame.lin, quads, ids)
+        # 2. exposure
+        exposure = self._exposure(frame, quads)
+        # 3. edges: sub-pixel corners (and the frame's tone curve and lens)
+        edges = _Edges(frame, _Markers(ids, np.asarray(quads, dtype=np.float64),
+                                       np.full((len(ids), 4), np.nan)), dark,
+                       known_lens(camera) if camera is not None else None)
+        if self.config.refine_edges and len(ids):
+            edges = self._fit_edges(edges, quads, exposure)
+        frame = edges.frame
+        # 4. verification, and a clipped frame's missing markers looked for on the grid
+        markers, rejected = self._verify(frame.lin, edges.markers, edges.dark, exposure.clipped)
+        if (exposure.clipped and self.config.grid_search and self.config.refine_edges
+                and self.board.board_type == "marker_grid"):
+            markers = self._grid_search(frame.lin, markers, rejected, edges)
+        # 5. centres, and the view's edge shift removed from the corners
+        return self._finish(frame, markers, edges,
+                            exposure.clipped and exposure.ink >= _PLACE_ABOVE, source)
+
+    def _read(self, image: np.ndarray) -> _Frame:
+        """The image as the stages read it, through the configured or pooled tone curve."""
         gray = to_gray(image)
-        h, w = gray.shape
         gray8 = to_gray8(gray)
         sharpness = float(cv2.Laplacian(gray8, cv2.CV_32F).var())
         gamma = self._fixed_gamma(gray.dtype)
         probing = gamma == 0 and not self._tone_pool.settled
         curve = ToneCurve("power", gamma) if gamma > 0 else self._tone_pool.estimate().curve
-        lin = curve.linearise(gray)
-        # a chessboard has no marker borders to estimate the tone curve from: the
-        # configured curve or the pool's (gamma 2.2 until markers say otherwise)
-        if self._candidates is None:     # a chessboard or a circle grid: points only
-            if self.board.circles is not None:
-                pids, pts, psig = detect_circles(
-                    gray8, lin, self.board, known_lens(camera) if camera is not None else None)
-            else:
-                pids, pts, psig = detect_chessboard(gray8, lin, self.board)
-            return replace(Detections.empty((w, h), source), sharpness=sharpness,
-                           point_ids=pids, points_px=pts, point_sigma_px=psig)
-        bits = self.board.bits
-        quads, ids = self._candidates.find(gray8, lin)
-        if len(ids) == 0:
-            return replace(Detections.empty((w, h), source), sharpness=sharpness)
+        return _Frame(gray, gray8, curve.linearise(gray), curve, probing, sharpness)
 
-        dark = border_is_dark(lin, quads, bits)
+    def _detect_points(self, frame: _Frame, camera: CameraModel | HasCamera | None,
+                       source: str) -> Detections:
+        """A chessboard's or circle grid's points. No marker borders to estimate the tone
+        curve from: the configured curve or the pool's (gamma 2.2 until markers say
+        otherwise)."""
+        if self.board.circles is not None:
+            pids, pts, psig = detect_circles(
+                frame.gray8, frame.lin, self.board,
+                known_lens(camera) if camera is not None else None)
+        else:
+            pids, pts, psig = detect_chessboard(frame.gray8, frame.lin, self.board)
+        return replace(Detections.empty(frame.size, source), sharpness=frame.sharpness,
+                       point_ids=pids, points_px=pts, point_sigma_px=psig)
+
+    def _of_polarity(self, lin: np.ndarray, quads: np.ndarray, ids: np.ndarray
+                     ) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+        """The candidates whose border has the board's polarity, and (N,) bool, dark border."""
+        dark = border_is_dark(lin, quads, self.board.bits)
         if self.board.polarity != "any":
             keep = dark == self._dark(ids)
             quads, ids, dark = quads[keep], ids[keep], dark[keep]
+        return quads, ids, dark
 
-        clipped = is_clipped(gray8)
+    def _exposure(self, frame: _Frame, quads: np.ndarray) -> _Exposure:
+        """Whether the frame clips, how dark its ink reads, and whether the fit censors."""
+        clipped = is_clipped(frame.gray8)
         # censoring the saturated samples makes a clipped edge's fit consistent while its
         # transition still shows; once the ink itself nears saturation only a sliver
         # of it does, and the edge of the clipped plateau is the steadier measure. A
         # frame clipped in part (a brighter patch of light) is censored too: only the
         # sides with saturated samples are fitted differently
-        saturated = clipped or saturates(gray8)
-        ink = dark_level(lin, quads, bits) if saturated else 0.0
-        censor = self.config.censor_clipped and saturated and ink < _CENSOR_BELOW
-        lens: Lens | None = (
-            known_lens(camera) if camera is not None else None)
-        fit_lens: Lens | None = None
-        censor_at: float | None = None
-        corners: np.ndarray
-        if self.config.refine_edges and len(ids):
-            lens_state = self._lens_pool.snapshot()
-            probe = self._probe(curve) if probing else None
-            censor_at = censor_level(curve, gray, gray8) if censor else None
-            fit = self._refine(lin, quads, dark, ids, lens, probe, censor_at)
-            if probe is not None:
-                probe.commit()
-                better = self._tone_pool.estimate().curve
-                if differs(better, curve):
-                    # this frame's edges again through the better curve (its lens
-                    # evidence replaces, not joins, that of the first fit)
-                    self._lens_pool.restore(lens_state)
-                    curve, lin = better, better.linearise(gray)
-                    censor_at = censor_level(curve, gray, gray8) if censor else None
-                    fit = self._refine(lin, quads, dark, ids, lens, None, censor_at)
-            # a lens estimated from this frame's edges bends the fitted sides; it moves
-            # the centers too once it is determined better than "no distortion" is
-            # (|lam| above its standard deviation; a noisier one would add more error
-            # to them than the distortion it removes)
-            fit_lens = fit.lens
-            if isinstance(fit.lens, DivisionLens) and fit.lens.significance >= 1.0:
-                lens = fit.lens
-            keep = fit.ok & same_edges(fit.corners_px, quads)
-            # a marker cut by the image edge has no corner there, only the edge
-            keep &= _clear_of_edge(fit.corners_px, w, h, 0.5)
-            corners, sigma = fit.corners_px[keep], fit.corner_sigma_px[keep]
-            ids, dark = ids[keep], dark[keep]
-        else:
-            corners, sigma = quads, np.full((len(ids), 4), np.nan)
-        corners = np.asarray(corners, dtype=np.float64)
+        saturated = clipped or saturates(frame.gray8)
+        ink = dark_level(frame.lin, quads, self.board.bits) if saturated else 0.0
+        return _Exposure(clipped, ink,
+                         self.config.censor_clipped and saturated and ink < _CENSOR_BELOW)
 
+    def _fit_edges(self, edges: _Edges, quads: np.ndarray, exposure: _Exposure) -> _Edges:
+        """The edge fit of the candidates (``edges``: as found, with the given lens); a
+        probing frame is fitted again through a better tone curve when its fit shows one."""
+        frame, ids, dark, lens = edges.frame, edges.markers.ids, edges.dark, edges.lens
+        lens_state = self._lens_pool.snapshot()
+        probe = self._probe(frame.curve) if frame.probing else None
+        censor_at = (censor_level(frame.curve, frame.gray, frame.gray8) if exposure.censor
+                     else None)
+        fit = self._refine(frame.lin, quads, dark, ids, lens, probe, censor_at)
+        if probe is not None:
+            probe.commit()
+            better = self._tone_pool.estimate().curve
+            if differs(better, frame.curve):
+                # this frame's edges again through the better curve (its lens
+                # evidence replaces, not joins, that of the first fit)
+                self._lens_pool.restore(lens_state)
+                frame = replace(frame, curve=better, lin=better.linearise(frame.gray))
+                censor_at = (censor_level(better, frame.gray, frame.gray8) if exposure.censor
+                             else None)
+                fit = self._refine(frame.lin, quads, dark, ids, lens, None, censor_at)
+        # a lens estimated from this frame's edges bends the fitted sides; it moves
+        # the centers too once it is determined better than "no distortion" is
+        # (|lam| above its standard deviation; a noisier one would add more error
+        # to them than the distortion it removes)
+        if isinstance(fit.lens, DivisionLens) and fit.lens.significance >= 1.0:
+            lens = fit.lens
+        keep = fit.ok & same_edges(fit.corners_px, quads)
+        # a marker cut by the image edge has no corner there, only the edge
+        keep &= _clear_of_edge(fit.corners_px, *frame.size, 0.5)
+        markers = _Markers(ids[keep], np.asarray(fit.corners_px[keep], dtype=np.float64),
+                           fit.corner_sigma_px[keep])
+        return _Edges(frame, markers, dark[keep], lens, fit.lens, censor_at)
+
+    def _verify(self, lin: np.ndarray, markers: _Markers, dark: np.ndarray, clipped: bool
+                ) -> tuple[_Markers, tuple[np.ndarray, np.ndarray]]:
+        """The markers whose code, neighbours and sides check out, and the rest's corners
+        (R, 4, 2) and ids (R,)."""
+        ids, corners = markers.ids, markers.corners_px
         errors = code_errors(lin, corners, dark, ids, self.board)
         support = neighbour_support(corners, ids, self.board, self.config.neighbour_tolerance,
                                     self._grow_to)
@@ -445,34 +443,43 @@ class Detector:
         if self.config.max_bit_errors_isolated is not None:
             ok |= (support == 0) & (errors <= self.config.max_bit_errors_isolated)
         ok &= support >= 0
-        ok &= sides_are_edges(lin, corners, dark, bits, clipped=clipped)
-        rejected = (corners[~ok], ids[~ok])
-        corners, sigma, ids = corners[ok], sigma[ok], ids[ok]
-        if (clipped and self.config.grid_search and self.config.refine_edges
-                and self.board.board_type == "marker_grid"):
-            # blooming hides most small markers from the quad finder: look where the
-            # verified ones say the others are (docs/tone.md, "Clipped frames")
-            ids, corners, sigma = grow(
-                lin, ids, corners, sigma, self.board, self._candidates.clipped_patterns,
-                lambda q, i: self._refine(lin, q, self._dark(i), i, lens, None, censor_at,
-                                          pool=False),
-                min_side_px=self.config.min_side_px,
-                tolerance=self.config.neighbour_tolerance, hints=rejected)
+        ok &= sides_are_edges(lin, corners, dark, self.board.bits, clipped=clipped)
+        return (_Markers(ids[ok], corners[ok], markers.sigma_px[ok]),
+                (corners[~ok], ids[~ok]))
 
-        centers, center_sigma = diagonal_centers(corners, sigma, lens)
+    def _grid_search(self, lin: np.ndarray, markers: _Markers,
+                     rejected: tuple[np.ndarray, np.ndarray], edges: _Edges) -> _Markers:
+        """Blooming hides most small markers from the quad finder: look where the verified
+        ones say the others are (docs/tone.md, "Clipped frames")."""
+        assert self._candidates is not None
+        return _Markers(*grow(
+            lin, markers.ids, markers.corners_px, markers.sigma_px, self.board,
+            self._candidates.clipped_patterns,
+            lambda q, i: self._refine(lin, q, self._dark(i), i, edges.lens, None,
+                                      edges.censor_at, pool=False),
+            min_side_px=self.config.min_side_px,
+            tolerance=self.config.neighbour_tolerance, hints=rejected))
+
+    def _finish(self, frame: _Frame, markers: _Markers, edges: _Edges, place_sides: bool,
+                source: str) -> Detections:
+        """Centres, the view's edge shift removed from the corners, and the result."""
+        ids, corners, sigma = markers
+        centers, center_sigma = diagonal_centers(corners, sigma, edges.lens)
         shift = float("nan")
         # (a ChArUco board's markers are not on one pitch: its corners come from the saddles)
         if (self.config.edge_shift and self.config.refine_edges
                 and self.board.board_type == "marker_grid"):
-            corners, shift = self._remove_edge_shift(corners, centers, ids,
-                                                     lens if lens is not None else fit_lens,
-                                                     clipped and ink >= _PLACE_ABOVE)
+            corners, shift = remove_view_shift(
+                corners, centers, ids, self.board, ~self._dark(ids),
+                edges.lens if edges.lens is not None else edges.fit_lens,
+                place_sides=place_sides)
         order = np.argsort(ids)
-        dets = Detections(ids[order], corners[order], centers[order], (w, h),
-                          sigma[order], center_sigma[order], sharpness, source,
+        dets = Detections(ids[order], corners[order], centers[order], frame.size,
+                          sigma[order], center_sigma[order], frame.sharpness, source,
                           edge_shift_px=shift)
         if self.board.board_type == "charuco":
-            return dets.with_points(*charuco_corners(lin, self.board, dets.ids, dets.corners_px))
+            return dets.with_points(*charuco_corners(frame.lin, self.board, dets.ids,
+                                                     dets.corners_px))
         return dets
 
 

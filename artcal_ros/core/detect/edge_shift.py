@@ -18,6 +18,7 @@ seen at different scales separate them (:mod:`artcal_ros.core.calibrate.board_ch
 from __future__ import annotations
 
 from dataclasses import dataclass
+from typing import Protocol
 
 import numpy as np
 
@@ -25,7 +26,7 @@ from artcal_ros.core.board import Board
 from artcal_ros.core.homography import apply_h, homographies
 
 __all__ = ["MarkerGrowth", "compensate", "marker_growth", "neighbourhood_shift_px",
-           "robust_shift_px"]
+           "remove_view_shift", "robust_shift_px"]
 
 _NEIGHBOURS = ((0, 1), (1, 0), (0, -1), (-1, 0))
 # largest relative misfit of a neighbour's distance to the pitch (an edge shift of a
@@ -98,9 +99,8 @@ def marker_growth(ids: np.ndarray, corners_px: np.ndarray, centers_px: np.ndarra
 
 
 # scatter of a clipped frame's side offsets about their block's median up to which its
-# edges are trusted as fitted, px: on bench.exposure's three webcam poses it is 0.020 -
-# 0.035 px at exposures 1.47 - 4.41, where the censored fits are good, 0.036 - 0.047 at
-# 6.36, 0.06 - 0.09 at 9.16 and 0.20 - 0.29 at 13.2, where they are not (set on them)
+# edges are trusted as fitted, px: between the scatter of good censored fits and of poor
+# ones on bench.exposure's frames
 _EDGE_SCATTER_PX = 0.04
 # a side's offset is smoothed over the markers up to this many cells away (5 x 5 block)
 _SMOOTH_CELLS = 2
@@ -308,3 +308,74 @@ def toward_neighbourhood(ids: np.ndarray, raw_px: np.ndarray, corners_px: np.nda
     moved = compensate_sides(placed[have], -smooth[have])
     out[have] = (1.0 - w) * out[have] + w * (moved + out[have] - raw[have])
     return out
+
+
+class PixelLens(Protocol):
+    """A lens as the shift removal uses it: image pixels (N, 2) <-> undistorted pixels (N, 2)."""
+
+    def undistort(self, pts_px: np.ndarray) -> np.ndarray: ...
+
+    def distort(self, pts_px: np.ndarray) -> np.ndarray: ...
+
+
+# a view's edge shift is removed only beyond this over the markers read plus 2 sigma, px:
+# the shift read from the centres errs by more than its sigma in views of few markers
+_SHIFT_ERROR_PX = 0.3
+
+
+def remove_view_shift(corners: np.ndarray, centers: np.ndarray, ids: np.ndarray, board: Board,
+                      inverted: np.ndarray, lens: PixelLens | None, *,
+                      place_sides: bool = False) -> tuple[np.ndarray, float]:
+    """The corners with the view's edge shift removed, and the shift (NaN: unknown), pixels.
+
+    Measured and removed in undistorted pixels when a lens is known, so the lens's change
+    of scale between neighbours does not read as a shift.
+
+    Args:
+        corners: (N, 4, 2) corners, pixels, board order.
+        centers: (N, 2) centres, pixels.
+        ids: (N,) marker ids on ``board``.
+        inverted: (N,) bool, markers printed white on black (each polarity has its own shift;
+            the one returned is the black ones').
+        lens: optional lens of the image.
+        place_sides: a far over-exposed frame: its corners are also moved toward the sides
+            its neighbours place (:func:`toward_neighbourhood`).
+    """
+    m = len(ids)
+    q, c = corners, centers
+    if lens is not None and m:
+        q = lens.undistort(corners.reshape(-1, 2)).reshape(m, 4, 2)
+        c = lens.undistort(centers)
+    # each marker's shift against the centres around it (they do not move with it)
+    marker_shift = neighbourhood_shift_px(ids, q, c, board)
+    # light spreading into dark grows a white-bordered marker and shrinks a black one:
+    # on a mixed board each polarity has its own shift (reported: the black ones')
+    shift, largest = float("nan"), 0.0
+    q_u, q = q, q.copy()
+    for group in (~inverted, inverted):
+        if not group.any():
+            continue
+        d, d_sd = robust_shift_px(marker_shift[group])
+        if not np.isfinite(d_sd):
+            continue
+        n_read = int(np.isfinite(marker_shift[group]).sum())
+        if abs(d) <= _SHIFT_ERROR_PX / n_read + 2.0 * d_sd:
+            d = 0.0     # not told apart from no shift: removing it would add error
+        # every side moves back along its normal (the centres were measured already)
+        q[group] = compensate(q[group], d)
+        largest = max(largest, abs(d))
+        if not np.isfinite(shift):
+            shift = d
+    if not np.isfinite(shift):
+        return corners, float("nan")
+    if lens is not None:
+        # the move, mapped back (the round trip of a point far out in a strong lens
+        # need not return it exactly: only the difference is taken)
+        moved = lens.distort(q.reshape(-1, 2)) - lens.distort(q_u.reshape(-1, 2))
+        q = corners + moved.reshape(m, 4, 2)
+        # a move the lens magnified beyond any shift's size is not one (a fold)
+        wild = ~(np.linalg.norm(q - corners, axis=-1) <= 4.0 * largest + 0.05).all(axis=1)
+        q[wild] = corners[wild]
+    if place_sides:
+        q = toward_neighbourhood(ids, corners, q, centers, board)
+    return q, shift

@@ -377,8 +377,7 @@ def _model_passes(lin: np.ndarray, sides: SideLayout, model: SideModel,
 
         if fit_blur is None:
             # the frame's blur from a few sides first: the others then start close to
-            # theirs (blur hardly varies across a frame; 0.6 px is far from a sharp
-            # edge's 0.03) and need a few steps, not 5 - 8
+            # theirs (blur hardly varies across a frame) and need fewer steps
             few = np.flatnonzero(used > 0)[::_PILOT_EVERY]
             pilot = fit(coef0=model.coef, blur0=np.full(S, 0.6), iterations=_PILOT_STEPS,
                         sides=few)[2]

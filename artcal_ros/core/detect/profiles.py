@@ -7,10 +7,9 @@ Two reads serve the edge refinement (:mod:`artcal_ros.core.detect.edges`):
 * :func:`gather_samples`: the raw pixels of a band across each side that the
   blurred-step model is fitted to (:mod:`artcal_ros.core.detect.step_model`).
 
-Both loop over sides and profiles in compiled code: the NumPy form built
-(S, K, J) arrays of every candidate point and masked most of them away again,
-which cost more than the fit itself. A point on side k is ``a + t u + s n``
-as in :mod:`.sides`.
+Both loop over sides and profiles in compiled code, which never builds the (S, K, J)
+arrays of every candidate point that array code would mask most of again. A point on
+side k is ``a + t u + s n`` as in :mod:`.sides`.
 """
 
 from __future__ import annotations

@@ -316,12 +316,8 @@ def module_geometry_at(corners: np.ndarray, pts: np.ndarray, side: np.ndarray,
 
     The width is the border's: from the edge point of the point's profile (the point
     moved ``offset`` back along the normal) one module inward, so it says where the
-    code behind the border begins. Taken at the point itself, it is the width of the
-    module-wide band behind the point instead, which differs wherever the image scale
-    changes across the side: in a fisheye's outer field, where the scale falls with
-    the radius, that misplaced the code's edge by a few hundredths of a pixel and
-    moved the fitted sides of every marker outward (corners 0.010 px outward on
-    average, 0.015 px beyond 400 px from the centre; ``bench.tone``'s fisheye).
+    code behind the border begins even where the image scale changes across the side
+    (a fisheye's outer field); taken at the point itself it would misplace the code.
 
     Args:
         corners: (M, 4, 2) current quads, pixels.
