@@ -172,6 +172,15 @@ def rig_bundle_adjust(obs: list[RigObservation], cameras: list[RigCamera],
                                                                         strict=True)))
         return total if np.isfinite(total) else np.inf
 
+    # the global columns each camera's points depend on: its intrinsics, then its extrinsics
+    cols_of = []
+    for k in range(n_cam):
+        cols = list(range(intr_slices[k].start, intr_slices[k].stop))
+        es = ext_slices[k]
+        if es is not None:
+            cols += list(range(es.start, es.stop))
+        cols_of.append(np.array(cols, dtype=int))
+
     def normal_equations(xg: np.ndarray, xf: np.ndarray) -> tuple[
             float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray, int]:
         cams, ext = unpack(xg)
@@ -190,21 +199,28 @@ def rig_bundle_adjust(obs: list[RigObservation], cameras: list[RigCamera],
                 pose, d_board, d_ext = xf[o.frame], np.eye(6), np.zeros((6, 6))
             img, A, B = project_with_jacobian(o.view.object_points, pose[:3], pose[3:],
                                               c.K, c.dist, c.model)
-            J = np.zeros((A.shape[0], p))
-            J[:, intr_slices[o.camera]] = free_jacobian(A, groups[o.camera])
-            es = ext_slices[o.camera]
-            if es is not None:
-                J[:, es] = B @ d_ext
-            J *= sw[:, None]
-            Jb = (B @ d_board) * sw[:, None]
+            # Only this camera's intrinsics, its extrinsics and the frame's pose move these
+            # points: one small Gram matrix of those columns, scattered into the blocks.
+            cols = cols_of[o.camera]
+            n_g = len(cols)
+            G = np.empty((A.shape[0], n_g + 6))
+            n_i = intr_slices[o.camera].stop - intr_slices[o.camera].start
+            G[:, :n_i] = free_jacobian(A, groups[o.camera])
+            if n_g > n_i:
+                G[:, n_i:n_g] = B @ d_ext
+            G[:, n_g:] = B @ d_board
+            G *= sw[:, None]
             r = (o.view.image_points - img).ravel() * sw
-            total += float(np.sum(r ** 2))
+            total += float(r @ r)
             n_rows += len(r)
-            U += J.T @ J
-            g += J.T @ r
-            W[o.frame] += J.T @ Jb
-            V[o.frame] += Jb.T @ Jb
-            gb[o.frame] += Jb.T @ r
+            # einsum, not BLAS: small products, and BLAS threads fight over shared cores
+            H = np.einsum("ij,ik->jk", G, G)
+            h = np.einsum("ij,i->j", G, r)
+            U[np.ix_(cols, cols)] += H[:n_g, :n_g]
+            g[cols] += h[:n_g]
+            W[o.frame][cols] += H[:n_g, n_g:]
+            V[o.frame] += H[n_g:, n_g:]
+            gb[o.frame] += h[n_g:]
         return (total if np.isfinite(total) else np.inf), U, g, W, V, gb, n_rows
 
     lam = 1e-3
@@ -215,7 +231,7 @@ def rig_bundle_adjust(obs: list[RigObservation], cameras: list[RigCamera],
         improved = False
         while lam < 1e10:
             Vi = np.linalg.inv(V + lam * V * eye6 + 1e-12 * eye6)
-            WVi = W @ Vi
+            WVi = np.einsum("npk,nkq->npq", W, Vi)
             S = U + lam * np.diag(np.diag(U)) - np.einsum("npk,nqk->pq", WVi, W)
             rhs = g - np.einsum("npk,nk->p", WVi, gb)
             try:
@@ -237,7 +253,7 @@ def rig_bundle_adjust(obs: list[RigObservation], cameras: list[RigCamera],
         current, U, g, W, V, gb, n_rows = normal_equations(x_g, x_f)
     current, U, g, W, V, gb, n_rows = normal_equations(x_g, x_f)
     # Covariance of the global parameters: the poses eliminated without damping.
-    S0 = U - np.einsum("npk,nqk->pq", W @ np.linalg.pinv(V), W)
+    S0 = U - np.einsum("npk,nkl,nql->pq", W, np.linalg.pinv(V), W)
     dof = max(n_rows - p - 6 * n_frames, 1)
     sigma = float(np.sqrt(current / dof))
     try:
