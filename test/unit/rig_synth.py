@@ -3,7 +3,6 @@ camera of a renderer rig (:mod:`artcal_ros.synth.rig`), with Gaussian corner noi
 
 from __future__ import annotations
 
-import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
@@ -48,5 +47,8 @@ def make_rig(name: str, preset: str, frames: int, seed: int, noise_px: float = 0
 
 
 def rotation_error_deg(R_true: np.ndarray, R_est: np.ndarray) -> float:
-    """Angle of R_true^T R_est, degrees."""
-    return float(np.degrees(np.linalg.norm(cv2.Rodrigues(R_true.T @ R_est)[0])))
+    """Angle of R_true^T R_est, degrees (from its skew part: exact for small angles, where
+    cv2.Rodrigues rounds below 1e-5 rad to zero)."""
+    d = R_true.T @ R_est
+    s = 0.5 * np.array([d[2, 1] - d[1, 2], d[0, 2] - d[2, 0], d[1, 0] - d[0, 1]])
+    return float(np.degrees(np.arctan2(np.linalg.norm(s), 0.5 * (np.trace(d) - 1.0))))
