@@ -295,6 +295,8 @@ def _coerce(spec: ParamSpec, value: Any) -> ParamValue | list[str]:
     if want is str and value is None:  # YAML's empty value: ``output_file:``
         return ""
     if want is list:
+        if value is None:   # YAML's empty value, and ROS's for an empty list (no type)
+            return []
         if isinstance(value, list | tuple) and all(isinstance(v, str) for v in value):
             return [str(v).strip() for v in value]
         raise wrong

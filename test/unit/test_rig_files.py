@@ -89,3 +89,15 @@ def test_header_stamp_from_the_cdr_bytes(order: str) -> None:
     assert header_stamp_ns(msg) == 1_700_000_123_000_456_789
     unstamped = kind + b"\x00\x00" + b"\x00" * 16
     assert header_stamp_ns(BagMessage("/t", "x", 5, 5, unstamped, lambda b: None)) == 5
+
+
+def test_the_cameras_parameter() -> None:
+    from artcal_ros.core.params import load_params
+
+    # ROS gives an empty list of a parameters file as no value at all
+    assert load_params(None, {"cameras": None})["cameras"] == []
+    assert load_params(None, {"cameras": ["left", "right"]})["cameras"] == ["left", "right"]
+    for bad, said in ((["left"], "names one camera"), (["a", "a"], "twice"),
+                      (["a b", "c"], "not a camera name"), ("left", "a list of names")):
+        with pytest.raises(ParameterError, match="parameter 'cameras'.*" + said):
+            load_params(None, {"cameras": bad})
