@@ -138,3 +138,24 @@ def test_bad_input_is_named() -> None:
     with pytest.raises(ParameterError, match="camera right: camera model 'pinhole'"):
         calibrate_rig(dets, BOARD, image_sizes=sizes,
                       model={"left": "plumb_bob", "right": "pinhole"})
+
+
+def test_outlier_corners_are_dropped() -> None:
+    rig, dets = make_rig("stereo", "webcam", 14, seed=10)
+    rng = np.random.default_rng(0)
+    bad = {n: list(v) for n, v in dets.items()}
+    moved = 0
+    for n in rig.names:
+        for k in (1, 5, 9):
+            d = bad[n][k]
+            corners = d.corners_px.copy()
+            pick = rng.choice(len(d), size=3, replace=False)
+            corners[pick, 0] += rng.choice([-1.0, 1.0], size=(3, 2)) * 4.0   # 4 px off
+            moved += 3
+            bad[n][k] = Detections(d.ids, corners, d.centers_px, d.image_size, source=d.source)
+    res = _solve(rig, bad)
+    assert res.points_dropped >= moved
+    _check_pair(rig, res, "left", "right", baseline_pct=0.05, rotation_deg=0.01)
+    text = res.summary()
+    assert text.splitlines()[1].startswith("left -> right: baseline 0.1200")
+    assert "rectified epipolar RMS" in text and text.count("plumb_bob") == 2

@@ -185,6 +185,32 @@ class RigResult:
                               info.dist_coeffs, (rect.R1 if first else rect.R2).copy(),
                               (rect.P1 if first else rect.P2).copy())
 
+    def summary(self, *, long: bool = False) -> str:
+        """The rig in words: one line per pair (each camera against the reference and each
+        consecutive pair: baseline, rotation, 1-sigma, shared frames, rectified epipolar
+        RMS), then each camera's one-line summary; with ``long`` each camera's long one."""
+        listed = [(self.reference, n) for n in self.names[1:]]
+        listed += [p for p in self.consecutive_pairs if p not in listed]
+        lines = [f"rig of {len(self.names)} cameras ({', '.join(self.names)}), "
+                 f"{len(self.frames_used)} frames, reprojection RMS "
+                 f"{self.reprojection_rms_px:.3f} px, {self.points_dropped} outlier points"
+                 + (", intrinsics held" if self.fixed_intrinsics else "")]
+        for a, b in listed:
+            p = self.pairs[a, b]
+            line = (f"{a} -> {b}: baseline {p.baseline_m:.5f} m (1-sigma {p.baseline_std_m:.2g}"
+                    f" m), rotation {p.rotation_deg:.3f} deg (1-sigma "
+                    f"{float(np.linalg.norm(p.rotation_std_deg)):.2g} deg), t = "
+                    f"[{', '.join(f'{v:.5f}' for v in p.t)}] m, {p.shared_frames} shared frames")
+            if (a, b) in self.rectification:
+                line += (f", rectified epipolar RMS "
+                         f"{self.rectification[a, b].epipolar_rms_px:.3f} px")
+            lines.append(line)
+        for n in self.names:
+            text = self.cameras[n].summary(long=long)
+            lines.append(f"{n}: {text}" if not long else f"{n}:\n{text}")
+        lines += [f"warning: {w}" for w in self.warnings]
+        return "\n".join(lines)
+
     def to_summary_dict(self) -> dict[str, Any]:
         """JSON-ready rig part of ``summary.json``: ``extrinsics`` (each camera against the
         reference and each consecutive pair), ``rectified_epipolar_rms_px`` (by pair name
