@@ -23,7 +23,7 @@ import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any
+from typing import Any, Protocol
 
 import numpy as np
 
@@ -33,6 +33,41 @@ from artcal_ros.core.errors import ArtcalError
 from artcal_ros.synth.camera import Camera
 
 _DECIMALS = 7
+
+
+class TruthFields(Protocol):
+    """The truth of one frame's markers and points, as :class:`TruthFrame` and
+    :class:`~artcal_ros.synth.view.RenderedView` both hold it (shapes there)."""
+
+    ids: np.ndarray
+    corners_px: np.ndarray
+    centers_px: np.ndarray
+    inside: np.ndarray
+    side_px: np.ndarray
+    point_ids: np.ndarray
+    points_px: np.ndarray
+    points_inside: np.ndarray
+
+
+def perfect_detections(truth: TruthFields, image_size: tuple[int, int], *, source: str,
+                       min_side_px: float = 0.0) -> Detections:
+    """A frame's true markers wholly inside the image (and its points in it) as perfect
+    :class:`Detections`, optionally only markers whose side is at least ``min_side_px``.
+
+    A marker of unknown side (NaN: a ``truth.json`` written without ``side_px``) is kept:
+    the size filter drops only markers known to be smaller.
+
+    Args:
+        truth: the frame's truth fields.
+        image_size: (width, height), pixels.
+        source: the Detections' source name.
+        min_side_px: shortest marker side kept, pixels.
+    """
+    keep = truth.inside & ~(truth.side_px < min_side_px)
+    pk = truth.points_inside
+    return Detections(truth.ids[keep], truth.corners_px[keep], truth.centers_px[keep],
+                      image_size, source=source, point_ids=truth.point_ids[pk],
+                      points_px=truth.points_px[pk])
 
 
 @dataclass(frozen=True)
@@ -69,11 +104,8 @@ class TruthFrame:
                         min_side_px: float = 0.0) -> Detections:
         """The markers wholly inside the image (and points in it) as perfect
         :class:`Detections`, optionally only markers whose side is >= ``min_side_px``."""
-        keep = self.inside & ~(self.side_px < min_side_px)
-        pk = self.points_inside
-        return Detections(self.ids[keep], self.corners_px[keep], self.centers_px[keep],
-                          image_size, source=self.file or f"stamp {self.stamp_ns}",
-                          point_ids=self.point_ids[pk], points_px=self.points_px[pk])
+        return perfect_detections(self, image_size, source=self.file or f"stamp {self.stamp_ns}",
+                                  min_side_px=min_side_px)
 
 
 @dataclass(frozen=True)

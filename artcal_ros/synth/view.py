@@ -21,9 +21,7 @@ from artcal_ros.synth.photometry import (
 )
 from artcal_ros.synth.poses import marker_truth, point_truth
 from artcal_ros.synth.render import board_coverage
-from artcal_ros.synth.truth import (
-    frame_record,
-)
+from artcal_ros.synth.truth import frame_record, perfect_detections
 
 
 @dataclass(frozen=True)
@@ -62,12 +60,8 @@ class RenderedView:
     def true_detections(self, *, min_side_px: float = 0.0) -> Detections:
         """The markers (and points) inside the image as perfect :class:`Detections` (true
         points), optionally only markers whose image side is at least ``min_side_px``."""
-        keep = self.inside & (self.side_px >= min_side_px)
         h, w = self.image.shape[:2]
-        pk = self.points_inside
-        return Detections(self.ids[keep], self.corners_px[keep], self.centers_px[keep], (w, h),
-                          source="synth", point_ids=self.point_ids[pk],
-                          points_px=self.points_px[pk])
+        return perfect_detections(self, (w, h), source="synth", min_side_px=min_side_px)
 
     def truth_record(self, *, file: str | None = None,
                      stamp_ns: int | None = None) -> dict[str, object]:
