@@ -9,6 +9,7 @@ a frame that camera saw nothing in.
 
 from __future__ import annotations
 
+import os
 import time
 from collections.abc import Callable, Mapping
 from dataclasses import dataclass, field
@@ -17,7 +18,12 @@ from typing import Any
 import numpy as np
 
 from artcal_ros.cli.progress import Progress
-from artcal_ros.cli.skipped import SkippedFrames, expand_image_paths, read_image_file
+from artcal_ros.cli.skipped import (
+    SkippedFrames,
+    expand_image_paths,
+    folder_hint,
+    read_image_file,
+)
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector, DetectorConfig
 from artcal_ros.core.detections import Detections
@@ -84,6 +90,10 @@ def folder_frames(globs: Mapping[str, str], board: Board, params: Mapping[str, A
             images (both counts named).
     """
     names = tuple(globs)
+    for n, g in globs.items():
+        if os.path.isdir(g):
+            raise ParameterError(f"--camera {n}={g}: a directory; {folder_hint(g)} "
+                                 "(quoted, so the files are paired here in sorted order)")
     files = {n: expand_image_paths([g]) for n, g in globs.items()}
     counts = {n: len(f) for n, f in files.items()}
     if len(set(counts.values())) > 1:

@@ -227,6 +227,8 @@ def test_usage_errors_exit_2_with_one_line(stereo: tuple[Path, RigTruth], tmp_pa
         (["--camera", left, "--camera", left.replace("left=", "right="), "--camera",
           "bad name=x", "--output-dir", str(tmp_path)], "not a camera name"),
         (["--camera", left, "--camera", "right", "--output-dir", str(tmp_path)], "NAME=VALUE"),
+        (["--camera", f"left={data}/left", "--camera", right, "--output-dir", str(tmp_path)],
+         f"give the image files in it, e.g. {data}/left/*.png"),
         (["--bag", str(tmp_path / "nobag"), "--camera", "left=/a", "--camera", "right=/b",
           "--output-dir", str(tmp_path)], "nobag"),
     ]
