@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
+from artcal_ros.core.images.broken_frames import BrokenTally, broken_cause
 
 # File name endings OpenCV's imread decodes (lower case), for the hint on a folder.
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".ppm", ".pnm",
@@ -27,28 +28,32 @@ IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".tif", ".tiff", ".bmp", ".pgm", ".pp
 
 
 class SkippedFrames:
-    """Counts skipped frames by cause (the error text up to its first ';')."""
+    """Counts skipped frames by cause, in the node's cause table
+    (:func:`~artcal_ros.core.images.broken_frames.broken_cause`)."""
 
     def __init__(self) -> None:
-        self.causes: Counter[str] = Counter()
+        self._tally = BrokenTally()
 
     def add(self, error: ArtcalError | str) -> None:
         """Count one skipped frame; ``error`` says why."""
-        text = str(error).split(";", 1)[0].strip() or "unknown cause"
-        self.causes[text] += 1
+        self._tally.add(broken_cause(error))
 
     @property
     def count(self) -> int:
         """Frames skipped."""
-        return sum(self.causes.values())
+        return self._tally.total()
 
     def summary(self) -> str:
-        """``skipped 3 broken frames: 2 <cause>; 1 <cause>``, or "" when none was skipped."""
-        if not self.count:
+        """``skipped 3 broken frames: 2 <cause>; 1 <cause>`` (the most frequent first), or ""
+        when none was skipped."""
+        counts = self._tally.counts()
+        if not counts:
             return ""
-        plural = "s" if self.count != 1 else ""
-        causes = "; ".join(f"{n} {cause}" for cause, n in self.causes.most_common())
-        return f"skipped {self.count} broken frame{plural}: {causes}"
+        total = sum(counts.values())
+        plural = "s" if total != 1 else ""
+        by_count = sorted(counts.items(), key=lambda item: -item[1])
+        causes = "; ".join(f"{n} {cause}" for cause, n in by_count)
+        return f"skipped {total} broken frame{plural}: {causes}"
 
 
 def read_image_file(path: str) -> np.ndarray:
@@ -61,23 +66,29 @@ def read_image_file(path: str) -> np.ndarray:
     import cv2
 
     if os.path.isdir(path):
-        raise ImageFormatError(f"cannot read image {path}: it is a directory "
+        raise _file_error(f"cannot read image {path}: it is a directory "
                                f"({folder_hint(path)})")
     if not os.path.isfile(path):
-        raise ImageFormatError(f"cannot read image {path}: no such file")
+        raise _file_error(f"cannot read image {path}: no such file")
     try:
         image = cv2.imread(path, cv2.IMREAD_UNCHANGED)
     except cv2.error:
         image = None
     if image is None:
-        raise ImageFormatError(f"cannot read image {path}: not an image OpenCV can decode")
+        raise _file_error(f"cannot read image {path}: not an image OpenCV can decode")
     if image.ndim == 3 and image.shape[2] == 4:
         image = cv2.cvtColor(image, cv2.COLOR_BGRA2BGR)
     if image.dtype not in (np.uint8, np.uint16) or image.ndim not in (2, 3) or (
             image.ndim == 3 and image.shape[2] not in (1, 3)):
-        raise ImageFormatError(f"cannot use image {path}: {image.dtype} pixels of shape "
+        raise _file_error(f"cannot use image {path}: {image.dtype} pixels of shape "
                                f"{image.shape}; save it as 8- or 16-bit grey or colour")
     return np.asarray(image)
+
+
+def _file_error(message: str) -> ImageFormatError:
+    """An unreadable file's error; its cause names the file as given (a file is one broken
+    frame the user must find, and the numbers in its name are part of that name)."""
+    return ImageFormatError(message, cause=message.split("; ", 1)[0])
 
 
 def folder_hint(folder: str) -> str:

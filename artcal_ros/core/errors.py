@@ -22,7 +22,15 @@ class BoardError(ParameterError):
 
 
 class ImageFormatError(ArtcalError):
-    """An image or sensor_msgs/Image message cannot be interpreted."""
+    """An image or sensor_msgs/Image message cannot be interpreted.
+
+    ``cause``, when given, is the kind of fault broken frames are counted under (see
+    :func:`artcal_ros.core.images.broken_frames.broken_cause`).
+    """
+
+    def __init__(self, message: str, *, cause: str | None = None) -> None:
+        super().__init__(message)
+        self.cause = cause
 
 
 class BagError(ArtcalError):

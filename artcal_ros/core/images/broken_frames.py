@@ -1,4 +1,5 @@
-"""Broken frames by cause: what the node counts, reports and logs once per cause.
+"""Broken frames by cause: what the node counts, reports and logs once per cause, and the
+``artcal`` verbs count and name in their summary (one cause table for both).
 
 A camera or a recording that sends one malformed frame usually sends thousands of the
 same kind: a log line per frame would drown everything else, and one throttled line
@@ -15,18 +16,19 @@ _NUMBER = re.compile(r"\b\d+(?:\.\d+)?\b")  # a number on its own, not mono8's 8
 _PARENTHESES = re.compile(r"\s*\([^()]*\)")
 
 
-def broken_cause(error: BaseException) -> str:
-    """The kind of fault an :class:`~artcal_ros.core.errors.ImageFormatError` describes,
-    the same for every frame with that fault: its ``cause`` attribute if it has one, else
-    its message's first clause with the numbers replaced by ``N`` and asides dropped
-    (``data has 153600 bytes, expected ...`` and ``data has 76800 bytes, ...`` are one
-    cause; ``unknown encoding 'yuv422'`` and ``unknown encoding 'x'`` are two)."""
+def broken_cause(error: BaseException | str) -> str:
+    """The kind of fault an error (or a text) describes, the same for every frame with that
+    fault: the error's ``cause`` attribute if it has one, else its message's first clause
+    with the numbers replaced by ``N`` and asides dropped (``data has 153600 bytes,
+    expected ...`` and ``data has 76800 bytes, ...`` are one cause; ``unknown encoding
+    'yuv422'`` and ``unknown encoding 'x'`` are two)."""
     cause = getattr(error, "cause", None)
     if isinstance(cause, str) and cause:
         return cause
     text = str(error).split("; ", 1)[0]
     text = _PARENTHESES.sub("", text)
-    return _NUMBER.sub("N", text).strip() or type(error).__name__
+    return _NUMBER.sub("N", text).strip() or (
+        type(error).__name__ if isinstance(error, BaseException) else "unknown cause")
 
 
 class BrokenTally:
