@@ -10,8 +10,9 @@ Two rigs, named as ``artcal synth --rig`` names them::
 
 ``stereo``: ``left`` and ``right``, right's centre 0.12 m along left's x axis, its optical axis
 turned 0.38 deg from left's. ``trio``: ``cam0`` ``cam1`` ``cam2`` side by side 0.15 m apart,
-the outer two turned 30 deg outwards (left and right), so each outer camera shares part of
-its field with ``cam1`` and none with the other: the board connects them through ``cam1``.
+the outer two turned outwards (left and right) by half the lens's field plus 5 deg (35 to
+85 deg, :func:`trio_yaw_deg`), so each outer camera shares part of its field with ``cam1``
+and none in front of the rig with the other: the board connects them through ``cam1``.
 The cameras after the first differ a little from the given camera (focal length, principal
 point, distortion), as two copies of one camera model do.
 
@@ -39,7 +40,7 @@ from artcal_ros.synth.poses import Pose, ease_between, feature_visibility, rando
 RIGS = ("stereo", "trio")
 STEREO_BASELINE_M = 0.12
 TRIO_SPACING_M = 0.15
-TRIO_YAW_DEG = 35.0
+TRIO_YAW_DEG = 35.0   # at least; more for a lens wider than 60 degrees across
 # a view is placed again (up to this many times) until its aimed cameras see the board
 _ATTEMPTS = 200
 
@@ -67,6 +68,21 @@ def invert(a: Pose) -> Pose:
     """T_y_x of T_x_y, each (rvec (3,), tvec (3,) metres)."""
     R = _matrix(a[0])
     return _rvec(R.T), -R.T @ np.asarray(a[1], np.float64).reshape(3)
+
+
+def half_field_deg(cam: Camera) -> float:
+    """Half the horizontal field of view (the image's left and right edge, mid-height), deg."""
+    u = np.array([0.0, cam.width - 1.0])
+    v = np.full(2, (cam.height - 1) / 2.0)
+    rays = np.asarray(cam.rays(u, v)[0], np.float64)
+    angles = np.degrees(np.arctan2(np.hypot(rays[:, 0], rays[:, 1]), rays[:, 2]))
+    return float(angles.max())
+
+
+def trio_yaw_deg(cam: Camera) -> float:
+    """How far the trio's outer cameras turn outwards: enough that their fields do not meet
+    in front of the rig (half the field plus 5 deg), at least 35 and at most 85 deg."""
+    return float(np.clip(half_field_deg(cam) + 5.0, TRIO_YAW_DEG, 85.0))
 
 
 def _variant(cam: Camera, index: int) -> Camera:
@@ -113,9 +129,10 @@ class Rig:
                       ((0.15, -0.35, 0.12), (STEREO_BASELINE_M, 0.0, 0.0))]
         elif name == "trio":
             names = ("cam0", "cam1", "cam2")
-            places = [((0.4, -TRIO_YAW_DEG, 0.3), (-TRIO_SPACING_M, 0.0, 0.0)),
+            yaw = trio_yaw_deg(camera)
+            places = [((0.4, -yaw, 0.3), (-TRIO_SPACING_M, 0.0, 0.0)),
                       ((0.0, 0.0, 0.0), (0.0, 0.0, 0.0)),
-                      ((-0.3, TRIO_YAW_DEG, -0.2), (TRIO_SPACING_M, 0.0, 0.002))]
+                      ((-0.3, yaw, -0.2), (TRIO_SPACING_M, 0.0, 0.002))]
         else:
             raise ParameterError(f"--rig: {name!r} is not one of {', '.join(RIGS)}")
         poses = []
