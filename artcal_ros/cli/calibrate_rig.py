@@ -40,8 +40,8 @@ from artcal_ros.cli.rig_frames import RigFrames, bag_frames, folder_frames
 from artcal_ros.cli.skipped import SkippedFrames
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate.board_check import check_board
+from artcal_ros.core.calibrate.rig_files import rig_solve_kwargs, write_rig_files
 from artcal_ros.core.calibrate.rig_result import RigResult
-from artcal_ros.core.calibrate.solve_run import calibrate_kwargs
 from artcal_ros.core.errors import ArtcalError, CalibrationError, ParameterError
 from artcal_ros.core.params import SPECS
 
@@ -144,33 +144,14 @@ def _solve(frames: RigFrames, board: Board, params: dict[str, Any], fixed: dict[
             raise ParameterError(
                 f"--intrinsics {n}: the YAML is for {info.image_size[0]}x{info.image_size[1]} "
                 f"images, camera {n}'s are {frames.sizes[n][0]}x{frames.sizes[n][1]}")
-    kw = calibrate_kwargs(params)
-    model = {n: (fixed[n].distortion_model if n in fixed else kw["model"])
-             for n in frames.names}
     extra: dict[str, Any] = {"max_frames": max_views} if max_views is not None else {}
-    return calibrate_rig(frames.detections, board, image_sizes=frames.sizes, model=model,
-                         points=kw["points"],
-                         fixed_intrinsics={n: (i.camera_matrix, i.dist_coeffs)
-                                           for n, i in fixed.items()} or None,
-                         k_coefficients=kw["k_coefficients"],
-                         fix_principal_point=kw["fix_principal_point"],
-                         fix_aspect_ratio=kw["fix_aspect_ratio"],
-                         zero_tangent_dist=kw["zero_tangent_dist"], progress=say, **extra)
+    return calibrate_rig(frames.detections, board, image_sizes=frames.sizes, progress=say,
+                         **rig_solve_kwargs(params, frames.names, fixed), **extra)
 
 
 def write_outputs(directory: Path, rig: RigResult, topics: dict[str, str]) -> list[str]:
     """DIR/<name>.yaml per camera and DIR/camchain.yaml; returns the camchain's warnings."""
-    from artcal_ros.core.camchain import camchain_yaml, chain_cameras, write_text_atomic
-    from artcal_ros.core.camera_info import write_camera_info_yaml
-
-    chain = chain_cameras(rig.names, {n: rig.cameras[n].camera for n in rig.names},
-                          {p: rig.transform(*p) for p in rig.consecutive_pairs}, topics,
-                          rig.shared_frames)
-    text, warnings = camchain_yaml(chain)
-    for n in rig.names:
-        write_camera_info_yaml(directory / f"{n}.yaml", rig.camera_info(n))
-    write_text_atomic(directory / "camchain.yaml", text)
-    return warnings
+    return write_rig_files(directory, rig, topics)[1]
 
 
 def summary_dict(rig: RigResult, frames: RigFrames, board: Board) -> dict[str, Any]:

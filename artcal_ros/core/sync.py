@@ -12,8 +12,28 @@ is left unpaired::
 from __future__ import annotations
 
 from collections.abc import Mapping, Sequence
+from typing import Any
 
 from artcal_ros.core.errors import ParameterError
+
+
+def group_end(events: Sequence[tuple[int, str, Any]], i: int, tolerance_ns: int) -> int:
+    """The end (exclusive) of the rig frame that opens at ``events[i]``.
+
+    ``events``: (stamp ns, camera, anything) sorted by stamp. The frame takes the events
+    after ``i`` within ``tolerance_ns`` of its first stamp, until a camera already in it
+    comes again. The one rule of :func:`pair_by_stamp` and of the live node's pairing.
+    """
+    start, first = events[i][0], events[i][1]
+    names = {first}
+    j = i + 1
+    while j < len(events) and events[j][0] - start <= tolerance_ns:
+        name = events[j][1]
+        if name in names:
+            break   # a camera's next image opens the next frame
+        names.add(name)
+        j += 1
+    return j
 
 
 def pair_by_stamp(stamps: Mapping[str, Sequence[int]], *, tolerance_ns: int
@@ -42,15 +62,9 @@ def pair_by_stamp(stamps: Mapping[str, Sequence[int]], *, tolerance_ns: int
     frames: list[dict[str, int]] = []
     i = 0
     while i < len(events):
-        start, first, k0 = events[i]
-        group = {first: k0}
-        j = i + 1
-        while j < len(events) and events[j][0] - start <= tolerance_ns:
-            _, name, k = events[j]
-            if name in group:
-                break   # a camera's next image opens the next frame
-            group[name] = k
-            j += 1
+        first = events[i][1]
+        j = group_end(events, i, tolerance_ns)
+        group = {name: k for _, name, k in events[i:j]}
         if len(group) >= 2:
             frames.append(group)
         else:
