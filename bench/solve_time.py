@@ -53,7 +53,7 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate import calibrate
 from artcal_ros.core.calibrate.quality import projection_difference
-from artcal_ros.core.calibrate.solve_run import run_solve
+from artcal_ros.core.calibrate.solve_run import SolveWorker, run_solve
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import CalibrationError
 from artcal_ros.core.live.coverage import Readiness
@@ -259,8 +259,9 @@ def session_rows(presets: Sequence[str] = PRESETS, max_views: Sequence[int] = SW
                     for s in seeds:
                         cam, dets = sets[(preset, s)]
                         c0, t0 = time.process_time(), time.perf_counter()
-                        outcome = run_solve(dets, BOARD, cam.size, params, readiness,
-                                            stopping=threading.Event())
+                        with SolveWorker() as worker:
+                            outcome = run_solve(dets, BOARD, cam.size, params, readiness,
+                                                worker=worker, stopping=threading.Event())
                         walls.append(time.perf_counter() - t0)
                         cpus.append(time.process_time() - c0)
                         if not outcome.success:

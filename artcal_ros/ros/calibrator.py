@@ -11,14 +11,20 @@ Interface (names relative, remappable):
   services    ~/calibrate, ~/reset (std_srvs/Trigger)
   calls       set_camera_info      (sensor_msgs/SetCameraInfo) when ``commit`` is true
 
-Threads: image callbacks only hand the message to a keep-latest worker, the fast tier
-of :class:`~artcal_ros.core.live.LiveDetection`: it tracks the markers into the newest
-frame in a few milliseconds, draws the overlay, and queues the frames that show a new
-view (frames replaced while it is busy are counted as dropped). Precise detection runs
-on a background thread on those queued frames (and now and then on the newest one); only
-its detections become views. ``~/calibrate`` waits for the queued views, runs the solve
-on its own thread and waits for it in a reentrant callback, so images keep flowing
-meanwhile.
+Threads, each started, owned and joined (:meth:`CalibratorNode.stop`) by one object:
+  "track"          the node's keep-latest worker (:class:`~artcal_ros.ros.latest.LatestWorker`):
+                   image callbacks only hand it the message; it tracks the markers into the
+                   newest frame in a few milliseconds (the fast tier of
+                   :class:`~artcal_ros.core.live.stream.LiveDetection`), draws the overlay,
+                   and queues the frames that show a new view (frames replaced while it is
+                   busy are counted as dropped);
+  "measure views"  the LiveDetection's: precise detection of those queued frames (and now
+                   and then the newest one); only its detections become views;
+  "save session"   the SessionStore's: saves the views every few seconds;
+  "solve"          the node's :class:`~artcal_ros.core.calibrate.solve_run.SolveWorker`:
+                   ``~/calibrate`` waits for the queued views, submits the solve and waits
+                   for its future in a reentrant callback, so images keep flowing meanwhile.
+State read across them (the frame id, the last summary and board check) is behind one lock.
 
 Unless the user set up Fast DDS themselves, the node's participant gets a 64 MB
 shared-memory segment (:mod:`~artcal_ros.ros.transport`), so large frames from a
@@ -54,7 +60,7 @@ from std_srvs.srv import Trigger
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate.board_check import check_board
-from artcal_ros.core.calibrate.solve_run import SolveOutcome, busy_threads, run_solve
+from artcal_ros.core.calibrate.solve_run import SolveOutcome, SolveWorker, run_solve
 from artcal_ros.core.camera_info import as_camera_info
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
@@ -104,14 +110,14 @@ class CalibratorNode(Node):
         self.collector = ViewCollector(
             self.board, CoverageConfig(min_views=int(self.params["min_views"]),
                                        points=str(self.params["points"])))
-        self.live = LiveDetection(self.board, self.detector.detect, self.collector,
-                                  on_measured=self._on_measured,
-                                  on_error=self._on_worker_error)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         self.counters = Counters()
-        self.frame_id = "camera"
-        self.last_summary = ""
-        self.last_board_check = "not measured (no solve yet)"
+        # Written by the track worker and the ~/calibrate callback, read by the timers and
+        # the services: only under _status_lock (see the properties below).
+        self._status_lock = threading.Lock()
+        self._frame_id = "camera"
+        self._last_summary = ""
+        self._last_board_check = "not measured (no solve yet)"
         self._solving = threading.Lock()
         self._stopping = threading.Event()
         # Held to publish the heat map and the overlay: the latched heat map follows the
@@ -120,7 +126,26 @@ class CalibratorNode(Node):
         self._closed = False
         self.session = open_session(self, self.board, self.collector, self.params,
                                     self._stopping)
+        try:
+            self._wire()
+        except BaseException:
+            self.session.close()  # the one thread started so far
+            raise
+        # The threads last, once nothing can refuse the start any more.
+        self.live = LiveDetection(self.board, self.detector.detect, self.collector,
+                                  on_measured=self._on_measured,
+                                  on_error=self._on_worker_error)
+        self.solver = SolveWorker(name="solve")
+        self.worker: LatestWorker[Any] = LatestWorker(self._process, self._on_worker_error,
+                                                      name="track")
+        self._publish_coverage()
+        self.get_logger().info(
+            f"calibrating from '{self.images.topic}' ({self.params['image_transport']}); "
+            f"board {self.board.describe()}; call ~/calibrate after "
+            f"{self.params['min_views']} views; DDS transport: {self.transport}")
 
+    def _wire(self) -> None:
+        """Publishers, the image subscription, services and timers."""
         images = MutuallyExclusiveCallbackGroup()
         services = ReentrantCallbackGroup()
         timers = MutuallyExclusiveCallbackGroup()
@@ -143,13 +168,24 @@ class CalibratorNode(Node):
         # events choose again at once; this check catches what an event does not report.
         self.create_timer(0.5, self._choose_image_qos, callback_group=timers)
 
-        self.worker: LatestWorker[Any] = LatestWorker(self._process, self._on_worker_error,
-                                                      name="detect")
-        self._publish_coverage()
-        self.get_logger().info(
-            f"calibrating from '{self.images.topic}' ({self.params['image_transport']}); "
-            f"board {self.board.describe()}; call ~/calibrate after "
-            f"{self.params['min_views']} views; DDS transport: {self.transport}")
+    # --- state read across threads ---------------------------------------------------
+    @property
+    def frame_id(self) -> str:
+        """The images' frame id (the newest image's, "camera" before any)."""
+        with self._status_lock:
+            return self._frame_id
+
+    @property
+    def last_summary(self) -> str:
+        """The last successful solve's one-line summary ("" before one)."""
+        with self._status_lock:
+            return self._last_summary
+
+    @property
+    def last_board_check(self) -> str:
+        """The last solve's board check, in words."""
+        with self._status_lock:
+            return self._last_board_check
 
     # --- images -------------------------------------------------------------------
     def _on_image(self, msg: Image | CompressedImage) -> None:
@@ -178,7 +214,9 @@ class CalibratorNode(Node):
         except ImageFormatError as e:
             self._on_broken_frame(e)
             return
-        self.frame_id = msg.header.frame_id or self.frame_id
+        if msg.header.frame_id:
+            with self._status_lock:
+                self._frame_id = msg.header.frame_id
         frame = self.live.offer(image)
         self.counters.frame_processed(len(frame.markers))
         if self._stopping.is_set() or self.overlay_pub.get_subscription_count() == 0:
@@ -282,7 +320,7 @@ class CalibratorNode(Node):
         assert size is not None  # there are views
         self.get_logger().info(f"solving from {len(views)} views ({readiness.summary()})")
         outcome = run_solve(views, self.board, size, self.params, readiness,
-                            stopping=self._stopping)
+                            worker=self.solver, stopping=self._stopping)
         if not waited:
             outcome = replace(outcome, message=f"{outcome.message} ({self.collector.pending} "
                               "views still in detection were left out)")
@@ -292,10 +330,11 @@ class CalibratorNode(Node):
         info = msgs.camera_info(as_camera_info(outcome.result),
                                 msgs.header(stamp, self.frame_id))
         self.info_pub.publish(info)
-        self.last_summary = outcome.message
         check = check_board([views[i] for i in outcome.result.views_used], self.board,
                             outcome.result.camera)
-        self.last_board_check = check.text()
+        with self._status_lock:
+            self._last_summary = outcome.message
+            self._last_board_check = check.text()
         if check.warning:
             self.get_logger().warning(f"board check: {check.warning}")
         if self.params["commit"]:
@@ -347,18 +386,27 @@ class CalibratorNode(Node):
                                        "solves with it")
         return result
 
-    def stop(self) -> None:
-        """Stop the detection worker and any solve waiting (for shutdown).
+    def stop(self, timeout: float = 1.0) -> list[str]:
+        """Stop the node's threads (for shutdown): tracking, precise detection and the
+        solve, joined for up to ``timeout`` s in all, then the session's saving (a last
+        save of the views as they are now, for resume).
 
         After this returns nothing more is published (a frame still in detection finishes
-        without output), so the node may be destroyed while the worker winds down.
+        without output), so the node may be destroyed while a thread winds down. Call it
+        again to wait longer. Returns the names of the node's threads still running.
         """
         self._stopping.set()
         with self._output_lock:  # waits for a publish in progress
             self._closed = True
-        self.worker.stop(timeout=0.5)
-        self.live.stop(timeout=0.5)
-        self.session.close()  # the views as they are now, for resume
+        deadline = time.monotonic() + timeout
+        self.worker.stop(timeout)
+        self.live.stop(max(0.0, deadline - time.monotonic()))
+        self.solver.close(max(0.0, deadline - time.monotonic()))
+        self.session.close()
+        return [name for name, alive in (("track", self.worker.alive),
+                                         ("measure views", self.live.alive),
+                                         ("solve", self.solver.alive),
+                                         ("save session", self.session.alive)) if alive]
 
 
 HELP = CommandHelp(
@@ -406,20 +454,17 @@ def main(args: list[str] | None = None) -> int:
     finally:
         node.stop()
         shut_down(node, executor, spin_thread)
-    return _exit_status_when_threads_done(0)
+    return _exit_status_when_threads_done(node, 0)
 
 
-def _exit_status_when_threads_done(status: int, timeout: float = 2.0) -> int:
-    """Wait up to ``timeout`` s for solve and detection threads, else leave at once.
+def _exit_status_when_threads_done(node: CalibratorNode, status: int,
+                                   timeout: float = 2.0) -> int:
+    """Wait up to ``timeout`` s more for the node's threads, else leave at once.
 
     A daemon thread still inside OpenCV when the interpreter finalizes can abort the
     process ("exception not rethrown"); leaving with os._exit skips that finalization.
     """
-    deadline = time.monotonic() + timeout
-    names = ("detect", "detect-precise")
-    for thread in [*busy_threads(), *(t for t in threading.enumerate() if t.name in names)]:
-        thread.join(max(0.0, deadline - time.monotonic()))
-    if busy_threads() or any(t.name in names and t.is_alive() for t in threading.enumerate()):
+    if node.stop(timeout):
         sys.stdout.flush()
         sys.stderr.flush()
         os._exit(status)

@@ -20,10 +20,12 @@ T = TypeVar("T")
 class LatestWorker(Generic[T]):
     """Runs ``handler(item)`` on a daemon thread for the newest offered item only.
 
+    The worker starts its thread and :meth:`stop` joins it.
+
     Args:
         handler: called with each item taken; exceptions are passed to ``on_error``.
         on_error: called with an exception the handler raised (the worker keeps going).
-        name: the thread's name.
+        name: the thread's name: what the handler does.
     """
 
     def __init__(self, handler: Callable[[T], None],
@@ -92,9 +94,16 @@ class LatestWorker(Generic[T]):
                 with self._cond:
                     self._busy = False
 
-    def stop(self, timeout: float = 1.0) -> None:
-        """Ask the thread to end and wait up to ``timeout`` seconds (it is a daemon)."""
+    @property
+    def alive(self) -> bool:
+        """Whether the thread still runs."""
+        return self._thread.is_alive()
+
+    def stop(self, timeout: float = 1.0) -> bool:
+        """Ask the thread to end (after the item in hand) and wait up to ``timeout``
+        seconds; whether it ended. Idempotent: call again to wait longer."""
         with self._cond:
             self._stopping = True
             self._cond.notify()
         self._thread.join(timeout)
+        return not self._thread.is_alive()

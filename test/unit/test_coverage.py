@@ -257,27 +257,6 @@ def test_collector_under_concurrent_add_reset_and_queries() -> None:
     assert len(snap.views) == 1 and snap.image_size == other_size
 
 
-def test_solve_threads_are_forgotten_once_finished() -> None:
-    from artcal_ros.core.calibrate.solve_run import SOLVE_THREADS, busy_threads
-
-    release = threading.Event()
-    threads = [threading.Thread(target=release.wait, daemon=True) for _ in range(5)]
-    for t in threads:
-        t.start()
-        SOLVE_THREADS.append(t)
-    assert set(threads) <= set(busy_threads())
-    release.set()
-    for t in threads:
-        t.join(5)
-    assert busy_threads() == []
-    later = threading.Thread(target=threading.Event().wait, args=(5,), daemon=True)
-    later.start()
-    SOLVE_THREADS.append(later)
-    assert busy_threads() == [later]
-    # Nothing finished is kept: the registry does not grow with every solve.
-    assert SOLVE_THREADS._threads == [later]
-
-
 def test_counters_lose_no_count_across_threads() -> None:
     from artcal_ros.ros.diagnostics import Counters
 

@@ -16,6 +16,7 @@ from artcal_ros.cli.main import main
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate.quality import projection_difference
 from artcal_ros.core.calibrate.solve_run import (
+    SolveWorker,
     calibrate_kwargs,
     run_solve,
     solve_summary,
@@ -117,8 +118,9 @@ def test_run_solve_answers_false_with_the_reason_when_views_cannot_solve(
     cam = square_camera()
     views = noisy_views(cam, 2, seed=4)
     params = load_params(PARAMS, {"output_file": str(tmp_path / "c.yaml")})
-    outcome = run_solve(views, BOARD, cam.size, params, _collected(views).readiness(),
-                        stopping=threading.Event())
+    with SolveWorker() as worker:
+        outcome = run_solve(views, BOARD, cam.size, params, _collected(views).readiness(),
+                            worker=worker, stopping=threading.Event())
     assert not outcome.success and outcome.result is None
     assert outcome.message.startswith("calibration failed:") and "at least 3" in outcome.message
     assert not (tmp_path / "c.yaml").exists()
@@ -129,8 +131,9 @@ def test_run_solve_gives_the_one_line_summary_and_honours_the_options(tmp_path: 
     views = noisy_views(cam, 12, seed=5)
     params = load_params(PARAMS, {"output_file": str(tmp_path / "c.yaml"),
                                   "calibrate.fix_principal_point": True})
-    outcome = run_solve(views, BOARD, cam.size, params, _collected(views).readiness(),
-                        stopping=threading.Event())
+    with SolveWorker() as worker:
+        outcome = run_solve(views, BOARD, cam.size, params, _collected(views).readiness(),
+                            worker=worker, stopping=threading.Event())
     assert outcome.success, outcome.message
     K = outcome.result.camera_matrix
     assert (K[0, 2], K[1, 2]) == ((cam.size[0] - 1) / 2.0, (cam.size[1] - 1) / 2.0)
@@ -145,8 +148,9 @@ def test_run_solve_ends_at_once_when_stopping(tmp_path: Path) -> None:
     stopping = threading.Event()
     stopping.set()
     params = load_params(PARAMS, {"output_file": str(tmp_path / "c.yaml")})
-    outcome = run_solve(views, BOARD, cam.size, params, _collected(views).readiness(),
-                        stopping=stopping)
+    with SolveWorker() as worker:
+        outcome = run_solve(views, BOARD, cam.size, params, _collected(views).readiness(),
+                            worker=worker, stopping=stopping)
     # (the wait ends at once, or the solve has already stopped at its first stage)
     assert not outcome.success and ("shutting down" in outcome.message
                                     or "cancelled" in outcome.message), outcome.message

@@ -4,7 +4,8 @@ ROS-free. The CLI collects views with :func:`detect_views` from image files or a
 node with its :class:`~artcal_ros.core.live.coverage.ViewCollector` from a live stream; both
 then call :func:`solve_views` (the solve options come from the flat parameters through
 :func:`calibrate_kwargs`, so node and CLI read the same ``calibrate.*`` names) and phrase
-the result with :func:`solve_summary`. The node runs it off the executor thread with
+the result with :func:`solve_summary`. The node runs it off the executor thread on its
+:class:`SolveWorker` (the result a :class:`concurrent.futures.Future`) through
 :func:`run_solve`.
 
 ::
@@ -15,9 +16,11 @@ the result with :func:`solve_summary`. The node runs it off the executor thread 
 
 from __future__ import annotations
 
+import queue
 import threading
 import time
 from collections.abc import Callable, Iterable, Mapping, Sequence
+from concurrent.futures import Future, wait
 from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING, Any
@@ -33,33 +36,6 @@ from artcal_ros.core.params import output_path
 if TYPE_CHECKING:
     from artcal_ros.core.calibrate.result import CalibrationResult
     from artcal_ros.core.detect import Detector
-
-
-class _ThreadRegistry:
-    """The solve threads started, safe to add to and read from any thread."""
-
-    def __init__(self) -> None:
-        self._lock = threading.Lock()
-        self._threads: list[threading.Thread] = []
-
-    def append(self, thread: threading.Thread) -> None:
-        """Remember ``thread`` (finished ones are forgotten)."""
-        with self._lock:
-            self._threads = [t for t in self._threads if t.is_alive()] + [thread]
-
-    def alive(self) -> list[threading.Thread]:
-        """The threads still running."""
-        with self._lock:
-            return [t for t in self._threads if t.is_alive()]
-
-
-# Solve threads started (the node waits for live ones at shutdown, see busy_threads).
-SOLVE_THREADS = _ThreadRegistry()
-
-
-def busy_threads() -> list[threading.Thread]:
-    """Solve threads still running."""
-    return SOLVE_THREADS.alive()
 
 
 class OutputError(ArtcalError):
@@ -205,14 +181,88 @@ class CancelledError(Exception):
     """Raised from the solve's progress callback to end it early (node shutting down)."""
 
 
+@dataclass(frozen=True)
+class _SolveJob:
+    future: Future[SolveRun]
+    solve: Callable[[], SolveRun]
+
+
+class SolveWorker:
+    """Runs solves one at a time on one thread, named "solve", that it starts and joins.
+
+    :meth:`submit` returns the run as a :class:`concurrent.futures.Future`; :meth:`close`
+    ends a solve in progress at its next stage and joins the thread. Also a context
+    manager (closed on exit).
+    """
+
+    def __init__(self, *, name: str = "solve") -> None:
+        self._jobs: queue.SimpleQueue[_SolveJob | None] = queue.SimpleQueue()
+        self._cancel = threading.Event()
+        self._lock = threading.Lock()  # submit against close: no job is queued after the end
+        self._closed = False
+        self._thread = threading.Thread(target=self._run, name=name, daemon=True)
+        self._thread.start()
+
+    def submit(self, views: Sequence[Detections], board: Board, image_size: tuple[int, int],
+               params: Mapping[str, Any], *, cancel: threading.Event | None = None
+               ) -> Future[SolveRun]:
+        """Queue :func:`solve_views` of these views; its run (or its exception) comes back
+        in the future. ``cancel``: once set, the solve ends at its next stage with
+        :class:`CancelledError` (so does :meth:`close`)."""
+        def progress(_stage: str) -> None:
+            if self._cancel.is_set() or (cancel is not None and cancel.is_set()):
+                raise CancelledError
+
+        views, params = list(views), dict(params)  # the caller's may change meanwhile
+        future: Future[SolveRun] = Future()
+        with self._lock:
+            if self._closed:
+                future.set_exception(CancelledError())
+                return future
+            self._jobs.put(_SolveJob(future, lambda: solve_views(
+                views, board, image_size, params, progress=progress)))
+        return future
+
+    def _run(self) -> None:
+        while (job := self._jobs.get()) is not None:
+            if not job.future.set_running_or_notify_cancel():
+                continue  # cancelled while queued
+            try:
+                job.future.set_result(job.solve())
+            except BaseException as e:  # every outcome reaches the one waiting
+                job.future.set_exception(e)
+
+    @property
+    def alive(self) -> bool:
+        """Whether the thread still runs."""
+        return self._thread.is_alive()
+
+    def close(self, timeout: float = 2.0) -> bool:
+        """Cancel the solves (a running one ends at its next stage, queued ones at their
+        first) and wait up to ``timeout`` s for the thread; whether it ended. Idempotent."""
+        self._cancel.set()
+        with self._lock:
+            if not self._closed:
+                self._closed = True
+                self._jobs.put(None)
+        self._thread.join(timeout)
+        return not self._thread.is_alive()
+
+    def __enter__(self) -> SolveWorker:
+        return self
+
+    def __exit__(self, *_exc: object) -> None:
+        self.close()
+
+
 def run_solve(views: Sequence[Detections], board: Board, image_size: tuple[int, int],
-              params: Mapping[str, Any], readiness: Readiness, *,
+              params: Mapping[str, Any], readiness: Readiness, *, worker: SolveWorker,
               stopping: threading.Event) -> SolveOutcome:
-    """The node's solve: :func:`solve_views` on a daemon thread, waiting for it unless
+    """The node's solve: :func:`solve_views` on ``worker``'s thread, waiting for it unless
     ``stopping`` is set.
 
     On shutdown (``stopping`` set) the wait ends at once and the solve stops at its next
-    stage; the node waits briefly for it (see :func:`busy_threads`).
+    stage; the worker's owner joins its thread (:meth:`SolveWorker.close`).
 
     Args:
         views: the kept views (all of one image size).
@@ -221,45 +271,28 @@ def run_solve(views: Sequence[Detections], board: Board, image_size: tuple[int, 
         params: validated parameters (camera_model, points, calibrate.*, max_views,
             output_file, ...).
         readiness: the collection's state, mentioned in the answer when not ideal.
+        worker: the thread to solve on.
         stopping: set on shutdown; the wait then ends with success=false.
 
     Returns:
         success and the one-line summary, or success=false and the reason.
     """
-    box: dict[str, Any] = {}
-    done = threading.Event()
-
-    def progress(_stage: str) -> None:
-        if stopping.is_set():
-            raise CancelledError
-
-    def work() -> None:
-        try:
-            box["value"] = solve_views(views, board, image_size, params, progress=progress)
-        except CancelledError:
-            box["error"] = "cancelled"
-        except OutputError as e:
-            box["unsaved"] = e
-        except ArtcalError as e:
-            box["error"] = str(e)
-        except OSError as e:
-            box["error"] = f"could not write {output_path(params)}: {e.strerror or e}"
-        except Exception as e:
-            box["error"] = f"internal error: {e!r}"
-        finally:
-            done.set()
-
-    thread = threading.Thread(target=work, name="solve", daemon=True)
-    thread.start()
-    SOLVE_THREADS.append(thread)
-    while not done.wait(0.1):
+    future = worker.submit(views, board, image_size, params, cancel=stopping)
+    while not wait([future], timeout=0.1).done:
         if stopping.is_set():
             return SolveOutcome(False, "shutting down; calibration abandoned")
-    if "error" in box:
-        return SolveOutcome(False, f"calibration failed: {box['error']}")
-    if "unsaved" in box:  # calibrated: the answer says so, the node still publishes it
-        unsaved: OutputError = box["unsaved"]
+    try:
+        run = future.result()
+    except CancelledError:
+        return SolveOutcome(False, "calibration failed: cancelled")
+    except OutputError as unsaved:  # calibrated: the answer says so, the node publishes it
         return SolveOutcome(False, f"calibrated but NOT saved: {unsaved}; "
                             f"{unsaved.result.summary()}", unsaved.result)
-    run: SolveRun = box["value"]
+    except ArtcalError as e:
+        return SolveOutcome(False, f"calibration failed: {e}")
+    except OSError as e:
+        return SolveOutcome(False, "calibration failed: could not write "
+                            f"{output_path(params)}: {e.strerror or e}")
+    except Exception as e:
+        return SolveOutcome(False, f"calibration failed: internal error: {e!r}")
     return SolveOutcome(True, solve_summary(run, readiness=readiness), run.result)

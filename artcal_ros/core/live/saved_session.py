@@ -385,8 +385,10 @@ class SessionStore:
         return lines
 
     def start(self) -> None:
-        """Begin saving in the background."""
-        self._thread = threading.Thread(target=self._run, name="session", daemon=True)
+        """Begin saving in the background (once; :meth:`close` ends it)."""
+        if self._thread is not None:
+            return
+        self._thread = threading.Thread(target=self._run, name="save session", daemon=True)
         self._thread.start()
 
     def _run(self) -> None:
@@ -428,9 +430,15 @@ class SessionStore:
             self.saves += 1
             return True
 
-    def close(self) -> None:
-        """Stop the background saving and save a last time if anything changed."""
+    @property
+    def alive(self) -> bool:
+        """Whether the background saving still runs."""
+        return self._thread is not None and self._thread.is_alive()
+
+    def close(self, timeout: float = 5.0) -> None:
+        """Stop the background saving (waiting up to ``timeout`` s for its thread) and save
+        a last time if anything changed. Idempotent."""
         self._stop.set()
         if self._thread is not None:
-            self._thread.join(5.0)
+            self._thread.join(timeout)
         self.save_if_changed()

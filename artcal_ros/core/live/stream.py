@@ -127,7 +127,7 @@ class LiveDetection:
         self._refused = 0
         self._generation = 0  # counts resets: a detection started before one adds nothing
         self._commit = threading.Lock()
-        self._thread = threading.Thread(target=self._run, name="detect-precise", daemon=True)
+        self._thread = threading.Thread(target=self._run, name="measure views", daemon=True)
         self._thread.start()
 
     # --- fast tier -----------------------------------------------------------------
@@ -246,11 +246,18 @@ class LiveDetection:
                 self.collector.release(job.ticket)
         self.tracker.reset()
 
-    def stop(self, timeout: float = 1.0) -> None:
-        """End the background thread (a detection in progress finishes; it is a daemon)."""
+    @property
+    def alive(self) -> bool:
+        """Whether the background thread still runs."""
+        return self._thread.is_alive()
+
+    def stop(self, timeout: float = 1.0) -> bool:
+        """End the background thread (a detection in progress finishes) and wait up to
+        ``timeout`` s for it; whether it ended. Idempotent: call again to wait longer."""
         with self._cond:
             self._stopping = True
             self._queue.clear()
             self._queued_bytes = 0
             self._cond.notify_all()
         self._thread.join(timeout)
+        return not self._thread.is_alive()
