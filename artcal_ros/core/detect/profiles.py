@@ -19,24 +19,10 @@ import math
 import numpy as np
 from numba import njit
 
+from artcal_ros.core.detect.sampling import bilinear_at
 from artcal_ros.core.detect.workers import run_all, split_even
 
 __all__ = ["coarse_offsets", "gather_samples"]
-
-
-@njit(cache=True, error_model="numpy", nogil=True)
-def _bilinear_at(img: np.ndarray, x: float, y: float) -> float:
-    """One bilinear sample of img (H, W) at (x, y), clamped to the image (as ``bilinear``)."""
-    h, w = img.shape
-    x = min(max(x, 0.0), w - 1.000001)
-    y = min(max(y, 0.0), h - 1.000001)
-    x0 = math.floor(x)
-    y0 = math.floor(y)
-    fx = x - x0
-    fy = y - y0
-    top = img[y0, x0] * (1.0 - fx) + img[y0, x0 + 1] * fx
-    bottom = img[y0 + 1, x0] * (1.0 - fx) + img[y0 + 1, x0 + 1] * fx
-    return top * (1.0 - fy) + bottom * fy
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
@@ -56,7 +42,7 @@ def _coarse_kernel(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
             bx = a[s, 0] + t[s, k] * u[s, 0]
             by = a[s, 1] + t[s, k] * u[s, 1]
             for j in range(J):
-                prof[j] = _bilinear_at(lin, bx + offsets[j] * n[s, 0], by + offsets[j] * n[s, 1])
+                prof[j] = bilinear_at(lin, bx + offsets[j] * n[s, 0], by + offsets[j] * n[s, 1])
             # 1-pixel central difference of the expected sign, -inf outside [lo, hi]
             best = 0
             for j in range(J):

@@ -38,22 +38,29 @@ def bilinear(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
 @njit(cache=True, error_model="numpy", nogil=True)
 def _bilinear_kernel(image: np.ndarray, x: np.ndarray, y: np.ndarray) -> np.ndarray:
     """Kernel of :func:`bilinear` on flat (N,) positions; NaN where a position is not finite."""
-    h, w = image.shape
     out = np.empty(len(x))
     for i in range(len(x)):
         if not (np.isfinite(x[i]) and np.isfinite(y[i])):
             out[i] = np.nan
             continue
-        xi = min(max(x[i], 0.0), w - 1.000001)
-        yi = min(max(y[i], 0.0), h - 1.000001)
-        x0 = math.floor(xi)
-        y0 = math.floor(yi)
-        fx = xi - x0
-        fy = yi - y0
-        top = image[y0, x0] * (1.0 - fx) + image[y0, x0 + 1] * fx
-        bottom = image[y0 + 1, x0] * (1.0 - fx) + image[y0 + 1, x0 + 1] * fx
-        out[i] = top * (1.0 - fy) + bottom * fy
+        out[i] = bilinear_at(image, x[i], y[i])
     return out
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def bilinear_at(image: np.ndarray, x: float, y: float) -> float:
+    """One bilinear sample of ``image`` (H, W) at the finite pixel position (x, y), clamped
+    to the image; the sampler of :func:`bilinear`, callable from compiled kernels."""
+    h, w = image.shape
+    x = min(max(x, 0.0), w - 1.000001)
+    y = min(max(y, 0.0), h - 1.000001)
+    x0 = math.floor(x)
+    y0 = math.floor(y)
+    fx = x - x0
+    fy = y - y0
+    top = image[y0, x0] * (1.0 - fx) + image[y0, x0 + 1] * fx
+    bottom = image[y0 + 1, x0] * (1.0 - fx) + image[y0 + 1, x0 + 1] * fx
+    return top * (1.0 - fy) + bottom * fy
 
 
 def ring_points(s: np.ndarray, near: float, far: float) -> np.ndarray:
