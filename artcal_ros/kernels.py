@@ -26,8 +26,9 @@ from numba.core.dispatcher import Dispatcher
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector, detect
-from artcal_ros.core.detect.sampling import bilinear
+from artcal_ros.core.detect.sampling import bilinear, bilinear_at
 from artcal_ros.core.detect.step_model import pixel_esf
+from artcal_ros.core.homography import apply_one
 from artcal_ros.core.live.tracking import MarkerTracker
 from artcal_ros.synth.camera import Camera
 from artcal_ros.synth.photometry import Photometry
@@ -76,6 +77,9 @@ def warm() -> int:
     # float32 (a clean clone's test run compiled it after this warm-up).
     for dtype in (np.float32, np.float64):
         bilinear(np.zeros((8, 8), dtype), np.array([1.5]), np.array([2.5]))
+    # the one-point sampler and homography map the kernels share, called from Python
+    bilinear_at(np.zeros((8, 8)), 1.5, 2.5)
+    apply_one(np.eye(3), 1.5, 2.5)
     # the pixel's edge-spread function called on its own (the renderer-free edge tests do)
     pixel_esf(0.1, 0.6, 1.0, 0.0)
     return found

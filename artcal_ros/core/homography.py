@@ -49,11 +49,16 @@ def _apply_kernel(H: np.ndarray, pts: np.ndarray) -> np.ndarray:
     for m in range(M):
         h = H[m]
         for i in range(P):
-            x, y = pts[m, i, 0], pts[m, i, 1]
-            w = h[2, 0] * x + h[2, 1] * y + h[2, 2]
-            out[m, i, 0] = (h[0, 0] * x + h[0, 1] * y + h[0, 2]) / w
-            out[m, i, 1] = (h[1, 0] * x + h[1, 1] * y + h[1, 2]) / w
+            out[m, i, 0], out[m, i, 1] = apply_one(h, pts[m, i, 0], pts[m, i, 1])
     return out
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def apply_one(H: np.ndarray, x: float, y: float) -> tuple[float, float]:
+    """A homography H (3, 3) applied to one point (x, y); the map of :func:`apply_h`,
+    callable from compiled kernels (non-finite where the point maps to infinity)."""
+    w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
+    return (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / w, (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / w
 
 
 def shortest_sides(quads: np.ndarray) -> np.ndarray:

@@ -16,7 +16,8 @@ from artcal_ros.core.detect.edges import refine_quads
 from artcal_ros.core.detect.image import linearise, to_gray
 from artcal_ros.core.detect.lens import DivisionLens
 from artcal_ros.core.detect.patterns import inner_border_cells
-from artcal_ros.core.detect.sampling import bilinear, border_is_dark
+from artcal_ros.core.detect.sampling import bilinear, bilinear_at, border_is_dark
+from artcal_ros.core.homography import apply_h, apply_one, homographies
 from artcal_ros.synth import Camera, Photometry, RenderedView, random_poses, render_view
 
 CAM = Camera.preset("webcam")  # strong barrel distortion: bent sides near the image corners
@@ -61,6 +62,22 @@ def test_bilinear_is_exact_on_a_plane_and_clamps_at_the_border() -> None:
     np.testing.assert_allclose(bilinear(image, np.array([3.0]), np.array([2.0])), image[2, 3])
     far = bilinear(image, np.array([-5.0, 50.0]), np.array([-5.0, 50.0]))
     np.testing.assert_allclose(far, [image[0, 0], image[-1, -1]], atol=1e-5)
+    # the one-point sampler the compiled kernels call is the same sampler
+    assert [bilinear_at(image, float(a), float(b)) for a, b in zip(x[0], y[0], strict=True)] \
+        == out[0].tolist()
+
+
+def test_one_homography_map_for_arrays_and_single_points() -> None:
+    square = np.array([[[0.0, 0.0], [1.0, 0.0], [1.0, 1.0], [0.0, 1.0]]])
+    quad = np.array([[[10.0, 20.0], [52.0, 18.0], [61.0, 70.0], [8.0, 55.0]]])
+    H = homographies(square, quad)
+    np.testing.assert_allclose(apply_h(H, square), quad, atol=1e-9)
+    # the diagonals' crossing maps to the quad's diagonals' crossing (a projective invariant)
+    p, q = quad[0, 0], quad[0, 2]
+    r, s = quad[0, 1], quad[0, 3]
+    t = np.linalg.solve(np.column_stack([q - p, r - s]), r - p)[0]
+    np.testing.assert_allclose(apply_one(H[0], 0.5, 0.5), p + t * (q - p), atol=1e-9)
+    assert apply_one(H[0], 0.3, 0.8) == tuple(apply_h(H, np.array([[[0.3, 0.8]]]))[0, 0])
 
 
 @pytest.mark.parametrize("setup", ["lines", "given_lens", "estimated_lens"])

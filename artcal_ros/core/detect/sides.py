@@ -19,7 +19,7 @@ from artcal_ros.core.detect.lens import Lens
 from artcal_ros.core.detect.linalg import solve, sort_small
 from artcal_ros.core.detect.step_model import norm_cdf_pdf
 from artcal_ros.core.detect.workers import run_all, split_even
-from artcal_ros.core.homography import module_homographies
+from artcal_ros.core.homography import apply_one, module_homographies
 
 
 def side_frames(quads: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
@@ -387,9 +387,9 @@ def _module_points(Hinv: np.ndarray, H: np.ndarray, side: np.ndarray, pts: np.nd
     inner = np.empty_like(pts)
     for i in range(len(pts)):
         m, k = side[i] // 4, side[i] % 4
-        x, y = _apply(Hinv[m], pts[i, 0], pts[i, 1])
+        x, y = apply_one(Hinv[m], pts[i, 0], pts[i, 1])
         mod[i, 0], mod[i, 1] = x, y
-        x, y = _apply(Hinv[m], edge[i, 0], edge[i, 1])
+        x, y = apply_one(Hinv[m], edge[i, 0], edge[i, 1])
         # one module inward: +y from the top side, -x from the right, -y, +x
         if k == 0:
             y += 1.0
@@ -399,7 +399,7 @@ def _module_points(Hinv: np.ndarray, H: np.ndarray, side: np.ndarray, pts: np.nd
             y -= 1.0
         else:
             x += 1.0
-        inner[i, 0], inner[i, 1] = _apply(H[m], x, y)
+        inner[i, 0], inner[i, 1] = apply_one(H[m], x, y)
     return mod, inner
 
 
@@ -420,13 +420,6 @@ def _along_width(mod: np.ndarray, inner: np.ndarray, pts: np.ndarray, side: np.n
         if np.isnan(w):
             width[i] = w
     return along, width
-
-
-@njit(cache=True, error_model="numpy", nogil=True)
-def _apply(H: np.ndarray, x: float, y: float) -> tuple[float, float]:
-    """A homography H (3, 3) applied to one point."""
-    w = H[2, 0] * x + H[2, 1] * y + H[2, 2]
-    return (H[0, 0] * x + H[0, 1] * y + H[0, 2]) / w, (H[1, 0] * x + H[1, 1] * y + H[1, 2]) / w
 
 
 @njit(cache=True, error_model="numpy", nogil=True)

@@ -38,6 +38,7 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect.linalg import nanmedian_rows
 from artcal_ros.core.detections import Detections
+from artcal_ros.core.homography import apply_h
 
 __all__ = ["MarkerTracker", "TrackerConfig"]
 
@@ -136,13 +137,6 @@ def _local_homographies(src: np.ndarray, dst: np.ndarray, valid: np.ndarray) -> 
     atb = (at @ rhs[..., None])[..., 0]
     h = np.linalg.solve(ata, atb[..., None])[..., 0]
     return np.concatenate([h, np.ones((m, 1))], axis=1).reshape(m, 3, 3)
-
-
-def _apply(h: np.ndarray, pts: np.ndarray) -> np.ndarray:
-    """(M, P, 2): each of the M homographies applied to its own P points (M, P, 2)."""
-    q = pts @ h[:, :, :2].transpose(0, 2, 1) + h[:, None, :, 2]
-    with np.errstate(divide="ignore", invalid="ignore"):
-        return q[..., :2] / q[..., 2:]
 
 
 class MarkerTracker:
@@ -321,10 +315,10 @@ class MarkerTracker:
         src = self._object_centers[ids[safe]] - self._object_centers[ids][:, None]
         dst = (centers[safe] - centers[:, None]) / pitch[:, None, None]
         hom = _local_homographies(src, dst, have)
-        fit = _apply(hom, src)
+        fit = apply_h(hom, src)
         residual = np.where(have, np.linalg.norm(fit - dst, axis=2), 0.0).max(axis=1)
         corners = self._object_corners[ids] - self._object_centers[ids][:, None]
-        quads = _apply(hom, corners) * pitch[:, None, None] + centers[:, None]
+        quads = apply_h(hom, corners) * pitch[:, None, None] + centers[:, None]
         ok = enough & (residual <= self.config.max_residual) & np.isfinite(quads).all(axis=(1, 2))
         ok &= self._pattern_matches(ids, hom, pitch, centers, gray)
         return quads, ok
@@ -336,7 +330,7 @@ class MarkerTracker:
         A neighbourhood that slipped together by a whole marker keeps its shape and its
         motion agrees with itself; what it cannot keep is the pattern under each quad.
         """
-        pts = _apply(hom, self._modules[ids]) * pitch[:, None, None] + centers[:, None]
+        pts = apply_h(hom, self._modules[ids]) * pitch[:, None, None] + centers[:, None]
         pts = np.where(np.isfinite(pts), pts, -1.0).astype(np.float32)
         vals = cv2.remap(gray, pts[..., 0], pts[..., 1], cv2.INTER_LINEAR,
                          borderMode=cv2.BORDER_CONSTANT, borderValue=0).astype(np.float64)
