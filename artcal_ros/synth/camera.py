@@ -71,7 +71,7 @@ class Camera(CameraModel):
             # derivatives only scale sub-pixel distances: float32 (1e-7 relative) is plenty
             ray_du, ray_dv = (np.empty((h * w, 3), dtype=np.float32) for _ in range(2))
             valid = np.empty(h * w, dtype=bool)
-            # in blocks: temporaries stay in cache, ~3x faster than whole-image arrays
+            # in blocks: temporaries stay in cache, several times faster than whole-image arrays
             for i in range(0, h * w, CHUNK):
                 sl = slice(i, i + CHUNK)
                 ray[sl], ray_du[sl], ray_dv[sl], valid[sl] = self.rays(u[sl], v[sl])

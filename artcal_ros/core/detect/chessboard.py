@@ -42,12 +42,10 @@ def find_grid(gray8: np.ndarray, cols: int, rows: int) -> np.ndarray | None:
     return find_small_grid(gray8, cols, rows)
 
 
-# Squares of 4-6 px defeat OpenCV's finders, whose thresholding and erosion need ~7 px:
-# 14 of 20 such boards in the webcam renders. Enlarged four times, the same finder with its
-# quick check reads them all; enlarging only the small regions dense with X-corners keeps
-# that cheap and keeps the finder away from the rest of the image (whose marker codes it can
-# read as a grid). Without the quick check it reads them too, at three times the cost on
-# frames without the board.
+# Squares of 4-6 px defeat OpenCV's finders, whose thresholding and erosion need ~7 px.
+# Enlarged four times, the same finder with its quick check reads them; enlarging only the
+# small regions dense with X-corners keeps that cheap and keeps the finder away from the
+# rest of the image (whose marker codes it can read as a grid).
 _SMALL_SQUARE_PX = 10.0     # boards with larger squares are left to the finders above
 _UPSCALE = 4
 

@@ -108,7 +108,8 @@ _SMOOTH_CELLS = 2
 
 def _outward_normals(quads: np.ndarray) -> np.ndarray:
     """(N, 4, 2) unit normals of the sides of quads (N, 4, 2), side i from corner i to
-    i + 1, pointing away from the quad's centre."""
+    i + 1, pointing away from the quad's centre (sides.side_frames' normals, rounded
+    differently)."""
     nxt = np.roll(quads, -1, axis=1)
     tangent = nxt - quads
     normal = np.stack([tangent[..., 1], -tangent[..., 0]], axis=-1)

@@ -73,9 +73,7 @@ def compressed_plateau(gray8: np.ndarray) -> bool:
 
 
 # samples within this share of full scale (encoded) of the frame's top level count as
-# saturated: JPEG spreads a clipped patch's edge over the levels below its top (the
-# censored fits of a partly clipped JPEG fisheye view, bench.tone's seed 7203 view 5:
-# corners 0.090 - 0.092 px from 5 to 15 % down, 0.127 at 1.4 %, 0.150 at the top)
+# saturated: JPEG spreads a clipped patch's edge over the levels below its top
 CENSOR_MARGIN = 0.06
 
 

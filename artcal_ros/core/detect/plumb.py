@@ -15,19 +15,16 @@ from artcal_ros.core.detect.sides import SideModel, side_frames
 
 # the plausible division lenses (unit radius: the image's half diagonal): barrel distortion
 # as strong as a 170-degree equidistant lens's (about -1.1, -0.25, -0.08), pincushion of at
-# most the old symmetric bound. Camera lenses do not have pincushion that strong; noisy
-# dark frames' sides do fit it (lam +1.15 - +1.4 on bench.detection's dark webcam frames,
-# a barrel lens), and a looser symmetric bound let those through.
+# most lam +1.0. Camera lenses do not have pincushion that strong; the sides of noisy dark
+# frames of a barrel lens can fit it, and a looser symmetric bound would let those through.
 LAM_RANGE = (-2.0, 1.0)
 MAX_HIGHER = 1.0  # |lam2|, |lam3|
 # the largest share of the usable sides a plausible lens may leave beyond its fold
 MAX_BEYOND_FOLD = 0.1
 # a side's curvature (its parabola term, px) is trusted to no better than this: the
 # division model only approximates a lens, and the step model's own error under heavy
-# defocus bends short sides. With 0.003, noise-free fisheye frames (every side at the
-# floor, the outer field's short sides weighing as much as long ones) gave centres
-# 0.088 / 0.048 px where their noisy copies gave 0.041 / 0.045 (bench.tone's realistic
-# fisheye, seeds 7233 / 7213; 0.037 / 0.023 with 0.01). Webcam and wide within 0.0002 px.
+# defocus bends short sides (a lower floor lets a clean frame's short outer sides weigh as
+# much as long ones)
 CURVATURE_FLOOR = 0.01
 
 
@@ -178,10 +175,9 @@ def estimate_division(model: SideModel, quads: np.ndarray, t: np.ndarray,
     for _ in range(3):
         c = _side_curvature(_division(theta, center, scale), pts, quads, valid)
         # the curvatures are compared in straightened pixels, where a side's error is its
-        # image error magnified by the straightening: in a strong barrel model's outer
-        # field many times (up to 18,000 times for a close fisheye view's sides near the
-        # fold, whose weight then decided the pooled lens for every later frame). Never
-        # more weight than the image error's.
+        # image error magnified by the straightening, many times over in a strong barrel
+        # model's outer field near the fold, where a few sides would decide the pooled
+        # lens. Never more weight than the image error's.
         mag = _normal_magnification(_division(theta, center, scale), mid, n)
         weight = np.where(use, 1.0 / (var * mag * mag), 0.0)
         G = np.stack([(_side_curvature(_division(theta + eps * np.eye(3)[k], center, scale),
@@ -204,8 +200,7 @@ def estimate_division(model: SideModel, quads: np.ndarray, t: np.ndarray,
         if pool is not None:
             # this frame's own estimate, linearised at theta: own_info^-1 (own_info theta -
             # grad). Only a plausible fit joins the pool: the linearisations of fits that
-            # disagree wildly do not add up to a fit of their sides (one implausible
-            # fisheye frame pooled took lam from -0.75 to +1.4 for every later frame)
+            # disagree wildly do not add up to a fit of their sides.
             pool.info = pool.info + own_info
             pool.info_theta = pool.info_theta + own_info @ theta - own_grad
         return lens

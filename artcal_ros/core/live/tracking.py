@@ -10,9 +10,9 @@ rough marker positions. :class:`MarkerTracker` gives those in a few milliseconds
   carried forward to the newest frame with pyramidal Lucas-Kanade optical flow on a
   downscaled grey copy. Only the marker centres are followed: a window around a centre
   sees the whole marker and deforms symmetrically, where one around a corner drifts along
-  the border as the board turns (measured: 8 px after 10 frames of a fast 1080p sweep,
-  against 0.7 px for the centres). The corners come from a homography fitted to the
-  board positions of the marker's neighbours and their tracked centres;
+  the border as the board turns (an order of magnitude more than a centre). The corners
+  come from a homography fitted to the board positions of the marker's neighbours and
+  their tracked centres;
 - a marker is dropped as soon as its centre is lost, leaves the image, moves unlike its
   board neighbours (a slip onto the next marker of the repeating board moves it a whole
   pitch more than they do), or its neighbourhood no longer fits one homography. No id is
@@ -239,8 +239,8 @@ class MarkerTracker:
         The coarse estimate is Lucas-Kanade on quarter-size copies with a deep pyramid (up
         to 32 of the centres), where the board's repeating markers have blurred into one
         blob: it does not alias onto the next marker, and it brings the fine search within
-        reach of a sweep that speeds up (measured: 36 -> 97 px a frame at 1080p from one
-        frame to the next). Where it agrees with the last motion, that is kept (it is the
+        reach of a sweep whose speed jumps from one frame to the next. Where it agrees with
+        the last motion, that is kept (it is the
         finer start); where not, both are tried on those centres and the one whose fine
         search ends on the closer match is taken.
         """
