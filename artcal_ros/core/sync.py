@@ -17,7 +17,7 @@ from typing import Any
 from artcal_ros.core.errors import ParameterError
 
 
-def group_end(events: Sequence[tuple[int, str, Any]], i: int, tolerance_ns: int) -> int:
+def group_end(events: Sequence[tuple[Any, ...]], i: int, tolerance_ns: int) -> int:
     """The end (exclusive) of the rig frame that opens at ``events[i]``.
 
     ``events``: (stamp ns, camera, anything) sorted by stamp. The frame takes the events

@@ -88,3 +88,19 @@ def test_unknown_camera_is_refused() -> None:
     pairer: StampPairer[int] = StampPairer(("a", "b"), 0)
     with pytest.raises(ParameterError, match="'c' is not one of a, b"):
         pairer.add("c", 0, 0)
+
+
+@pytest.mark.parametrize("rotvec", [(0.1, -0.2, 0.3), (3.1, 0.0, 0.05), (0.0, 3.0, -0.4),
+                                    (0.2, 0.1, -3.1), (0.0, 0.0, 0.0)])
+def test_quaternion_of_a_rotation(rotvec: tuple[float, float, float]) -> None:
+    import cv2
+
+    from artcal_ros.core.calibrate.rig_files import quaternion_xyzw
+
+    v = np.asarray(rotvec)
+    R = cv2.Rodrigues(v)[0]
+    x, y, z, w = quaternion_xyzw(R)
+    angle = np.linalg.norm(v)
+    axis = v / angle if angle else np.zeros(3)
+    expected = np.array([*(np.sin(angle / 2) * axis), np.cos(angle / 2)])
+    assert np.allclose([x, y, z, w], expected, atol=1e-12)

@@ -13,6 +13,8 @@ from collections.abc import Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
+import numpy as np
+
 from artcal_ros.core.calibrate.rig_result import RigResult
 from artcal_ros.core.camera_info import CameraInfoData
 
@@ -70,3 +72,27 @@ def write_rig_files(directory: str | Path, rig: RigResult, topics: Mapping[str, 
     written.append(out / "camchain.yaml")
     write_text_atomic(written[-1], text)
     return written, warnings
+
+
+def quaternion_xyzw(R: np.ndarray) -> tuple[float, float, float, float]:
+    """The unit quaternion (x, y, z, w), w >= 0, of a rotation matrix ``R`` (3, 3)."""
+    m = np.asarray(R, dtype=np.float64)
+    # the largest of the four squared components is computed first: no cancellation
+    trace = float(np.trace(m))
+    diag = np.diag(m)
+    k = int(np.argmax([*diag, trace]))
+    if k == 3:
+        w = 0.5 * np.sqrt(1.0 + trace)
+        q = np.array([m[2, 1] - m[1, 2], m[0, 2] - m[2, 0], m[1, 0] - m[0, 1], 0.0]) / (4 * w)
+        q[3] = w
+    else:
+        i, j, l_ = k, (k + 1) % 3, (k + 2) % 3
+        q = np.zeros(4)
+        q[i] = 0.5 * np.sqrt(max(1.0 + m[i, i] - m[j, j] - m[l_, l_], 0.0))
+        q[j] = (m[j, i] + m[i, j]) / (4 * q[i])
+        q[l_] = (m[l_, i] + m[i, l_]) / (4 * q[i])
+        q[3] = (m[l_, j] - m[j, l_]) / (4 * q[i])
+    q /= np.linalg.norm(q)
+    if q[3] < 0:
+        q = -q
+    return float(q[0]), float(q[1]), float(q[2]), float(q[3])

@@ -106,7 +106,7 @@ class RigStream:
         self._measured = {n: 0 for n in self.names}
         self._refused = 0
         self._commit = threading.Lock()
-        self._thread = threading.Thread(target=self._run, name="rig-precise", daemon=True)
+        self._thread = threading.Thread(target=self._run, name="detect-precise", daemon=True)
         self._thread.start()
 
     # --- fast tier -------------------------------------------------------------------
@@ -276,10 +276,12 @@ class RigStream:
         for tracker in self.trackers.values():
             tracker.reset()
 
-    def stop(self, timeout: float = 1.0) -> None:
+    def stop(self, timeout: float = 1.0) -> bool:
         """End the worker thread and join it (a detection or call in progress finishes
-        first, up to ``timeout`` seconds; calls still queued are cancelled)."""
+        first, up to ``timeout`` seconds; calls still queued are cancelled); whether it is
+        still running."""
         with self._cond:
             self._stopping = True
             self._cond.notify_all()
         self._thread.join(timeout)
+        return self._thread.is_alive()

@@ -1,0 +1,99 @@
+"""The rig calibrator's messages: its /diagnostics and the extrinsics on /tf_static.
+
+Diagnostics: one status per camera (``<node>: <camera>``: frames seen, processed, broken,
+measured, markers in the last frame, views, coverage) and one for the rig (``<node>: rig``:
+``rig views``, shared views per pair, the cameras that share too few views with the others).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Mapping
+from typing import Any
+
+from builtin_interfaces.msg import Time
+from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from std_msgs.msg import Header
+
+from artcal_ros.core.calibrate.rig_files import quaternion_xyzw
+from artcal_ros.core.calibrate.rig_result import RigResult
+from artcal_ros.core.live.rig_views import RigSnapshot
+from artcal_ros.ros.diagnostics import CountsReport
+
+
+def _status(name: str, hardware_id: str, level: bytes, message: str,
+            values: Mapping[str, object]) -> DiagnosticStatus:
+    return DiagnosticStatus(level=level, name=name, message=message, hardware_id=hardware_id,
+                            values=[KeyValue(key=k, value=str(v)) for k, v in values.items()])
+
+
+def rig_diagnostics(node_name: str, counts: Mapping[str, CountsReport],
+                    snap: RigSnapshot, last_solve: str, stamp: Time, *,
+                    camera_extra: Mapping[str, Mapping[str, object]],
+                    rig_extra: Mapping[str, object]) -> DiagnosticArray:
+    """The rig node's DiagnosticArray: a status per camera, then the rig's.
+
+    A camera's status is WARN while its broken frames or detection failures keep coming
+    (since the previous report); the rig's while a camera is not connected.
+
+    Args:
+        counts: camera -> its counts (:meth:`~artcal_ros.ros.diagnostics.Counters.report`).
+        snap: the rig collection now.
+        last_solve: the last ``~/calibrate`` answer.
+        camera_extra: camera -> more key/values after the standard ones.
+        rig_extra: more key/values of the rig's status.
+    """
+    statuses = []
+    for n in snap.names:
+        c = counts[n]
+        ready = snap.readiness[n]
+        problems = []
+        if c.new_broken:
+            problems.append(f"{c.new_broken} broken frames in the last second "
+                            f"({c.broken_causes})")
+        if c.new_failed:
+            problems.append(f"detection failed on {c.new_failed} frames in the last second")
+        values = {"frames seen": c.seen, "frames processed": c.processed,
+                  "frames broken": c.broken, "broken causes": c.broken_causes,
+                  "frames failed": c.failed, "markers in last frame": c.markers_last,
+                  "views": ready.views, "coverage": f"{ready.coverage:.3f}",
+                  "coverage needed": f"{ready.coverage_needed:.3f}",
+                  "tilted views": f"{ready.tilted_lr} left/right, {ready.tilted_ud} up/down",
+                  **camera_extra.get(n, {})}
+        message = "; ".join([*problems, f"{ready.views} views, coverage {ready.coverage:.0%}"])
+        statuses.append(_status(f"{node_name}: {n}", n,
+                                DiagnosticStatus.WARN if problems else DiagnosticStatus.OK,
+                                message, values))
+    values = {"rig views": len(snap.views), "views needed": snap.min_views,
+              **{f"shared views {a}-{b}": k for (a, b), k in snap.shared.items()},
+              "cameras not connected": ", ".join(snap.not_connected),
+              "connectivity": snap.problem or "every camera connected",
+              "ready": str(snap.enough).lower(), "last calibration": last_solve,
+              **rig_extra}
+    statuses.append(_status(f"{node_name}: rig", ",".join(snap.names),
+                            DiagnosticStatus.WARN if snap.problem else DiagnosticStatus.OK,
+                            snap.summary(), values))
+    return DiagnosticArray(header=Header(stamp=stamp), status=statuses)
+
+
+def tf_static_message(rig: RigResult, frame_ids: Mapping[str, str], stamp: Time) -> Any:
+    """A tf2_msgs/TFMessage: each camera's frame in the reference camera's
+    (T_reference_camera, metres), or None when tf2_msgs is not installed or two cameras
+    share a frame id (no transform can join a frame to itself)."""
+    try:
+        from geometry_msgs.msg import Quaternion, Transform, TransformStamped, Vector3
+        from tf2_msgs.msg import TFMessage
+    except ImportError:
+        return None
+    ref = rig.reference
+    if len({frame_ids[n] for n in rig.names}) < len(rig.names):
+        return None
+    transforms = []
+    for n in rig.names[1:]:
+        T = rig.transform(n, ref)   # T_ref_n: a point in n's frame -> the reference's
+        x, y, z, w = quaternion_xyzw(T[:3, :3])
+        transforms.append(TransformStamped(
+            header=Header(stamp=stamp, frame_id=frame_ids[ref]), child_frame_id=frame_ids[n],
+            transform=Transform(translation=Vector3(x=float(T[0, 3]), y=float(T[1, 3]),
+                                                    z=float(T[2, 3])),
+                                rotation=Quaternion(x=x, y=y, z=z, w=w))))
+    return TFMessage(transforms=transforms)

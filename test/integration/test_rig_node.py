@@ -1,0 +1,183 @@
+"""The calibrator node with ``cameras: [left, right]`` over real DDS, started as the real
+console script, fed rendered stereo frames of a known rig.
+
+Checked against the renderer's truth: both CameraInfos (the right one's P with
+Tx = -fx' * baseline), the baseline within 1 % of the true 0.12 m, the files written, the
+rig's diagnostics; one camera name alone is refused at start-up, naming the parameter.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Iterator
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import pytest
+import yaml
+from diagnostic_msgs.msg import DiagnosticArray
+from sensor_msgs.msg import CameraInfo, Image
+from std_srvs.srv import Trigger
+
+from test.integration.qos import LATCHED, RELIABLE
+from test.integration.ros_harness import PARAMS, NodeProcess, Probe, wait_until
+
+pytestmark = pytest.mark.integration
+
+N_FRAMES = 12      # rig poses rendered, published round and round
+MIN_VIEWS = 8      # rig views before ~/calibrate solves
+PERIOD_S = 0.35    # between rig frames: the node measures about every one of them
+BASELINE_M = 0.12  # the stereo rig preset's
+
+
+def rig_node(tmp_path: Path, name: str, *params: str) -> NodeProcess:
+    """The calibrator console script as node ``name`` with config/calibrator.yaml and
+    ``params`` (``key:=value``) on top; its files go to ``tmp_path``."""
+    args = ["--params-file", str(PARAMS), "-r", f"__node:={name}",
+            "-p", f"output_file:={tmp_path / 'unused.yaml'}"]
+    for p in params:
+        args += ["-p", p]
+    return NodeProcess("calibrator", args, tmp_path, name=name)
+
+
+class StereoFrames:
+    """Rendered 640x480 bgr8 stereo frames of the stereo rig preset, with the rig."""
+
+    def __init__(self, n: int, seed: int = 25) -> None:
+        from std_msgs.msg import Header
+
+        from artcal_ros.core.board import Board
+        from artcal_ros.ros.msgs import bgr8_image
+        from artcal_ros.synth import Camera
+        from artcal_ros.synth.rig import Rig, rig_poses
+        from artcal_ros.synth.view import render_view
+
+        board = Board()
+        self.rig = Rig.preset("stereo", Camera.preset("webcam"))
+        poses = rig_poses(board, self.rig, n, np.random.default_rng(seed))
+        self.images: list[dict[str, Any]] = []
+        for i, pose in enumerate(poses):
+            frame = {}
+            for k, cam_name in enumerate(self.rig.names):
+                view = render_view(board, self.rig.camera(cam_name),
+                                   *self.rig.camera_pose(cam_name, pose),
+                                   rng=np.random.default_rng([seed, i, k]), encoding="bgr8")
+                frame[cam_name] = bgr8_image(view.image, Header(frame_id=f"{cam_name}_optical"))
+            self.images.append(frame)
+
+
+@pytest.fixture(scope="module")
+def stereo() -> StereoFrames:
+    return StereoFrames(N_FRAMES)
+
+
+class StereoStreamer:
+    """Publishes the frames on left/image and right/image round and round, stamped now
+    (right 3 ms after left, within sync_tolerance), one rig frame every PERIOD_S."""
+
+    def __init__(self, probe: Probe, frames: StereoFrames) -> None:
+        self.pubs = {n: probe.node.create_publisher(Image, f"/{n}/image", RELIABLE)
+                     for n in frames.rig.names}
+        self.frames = frames
+        self._stop = threading.Event()
+        self._thread = threading.Thread(target=self._run, daemon=True)
+        self._thread.start()
+
+    def _run(self) -> None:
+        k = 0
+        while not self._stop.wait(PERIOD_S):
+            now = time.time_ns()
+            for j, (n, pub) in enumerate(self.pubs.items()):
+                msg = self.frames.images[k % len(self.frames.images)][n]
+                stamp = now + j * 3_000_000
+                msg.header.stamp.sec, msg.header.stamp.nanosec = divmod(stamp, 1_000_000_000)
+                pub.publish(msg)
+            k += 1
+
+    def stop(self) -> None:
+        self._stop.set()
+        self._thread.join(5.0)
+        for pub in self.pubs.values():
+            pub.destroy()
+
+
+@pytest.fixture
+def streamer(probe: Probe, stereo: StereoFrames) -> Iterator[StereoStreamer]:
+    s = StereoStreamer(probe, stereo)
+    yield s
+    s.stop()
+
+
+def calibrate_until_success(probe: Probe, service: str, timeout: float) -> Any:
+    """Call ``service`` (Trigger) every few seconds until it answers success."""
+    answers: list[str] = []
+
+    def attempt() -> Any:
+        answer = probe.call(Trigger, service, timeout=60.0)
+        answers.append(answer.message)
+        return answer if answer.success else None
+
+    try:
+        return wait_until(attempt, timeout, f"a successful {service}", period=3.0)
+    except AssertionError as e:
+        raise AssertionError(f"{e}; answers: {answers[-3:]}") from None
+
+
+def rig_status(arrays: list[Any], node: str, part: str) -> dict[str, str]:
+    """The newest key/values of the status ``<node>: <part>``."""
+    for array in reversed(list(arrays)):
+        for status in array.status:
+            if status.name == f"{node}: {part}":
+                return {kv.key: kv.value for kv in status.values}
+    return {}
+
+
+def test_stereo_stream_calibrates_the_rig(tmp_path: Path, probe: Probe,
+                                         stereo: StereoFrames,
+                                         streamer: StereoStreamer) -> None:
+    t0 = time.monotonic()
+    infos = {n: probe.collect(CameraInfo, f"/{n}/camera_info", LATCHED) for n in ("left",
+                                                                                  "right")}
+    diags = probe.collect(DiagnosticArray, "/diagnostics", RELIABLE)
+    node = rig_node(tmp_path, "rigcal", "cameras:=[left,right]", f"min_views:={MIN_VIEWS}")
+    answer = calibrate_until_success(probe, "/rigcal/calibrate", timeout=80.0)
+    assert "left -> right: baseline" in answer.message, answer.message
+    wait_until(lambda: infos["left"] and infos["right"], 20.0, "both camera_info messages")
+    left, right = infos["left"][-1], infos["right"][-1]
+    assert (left.header.frame_id, right.header.frame_id) == ("left_optical", "right_optical")
+    for info, name in ((left, "left"), (right, "right")):
+        assert (info.width, info.height) == (640, 480)
+        true_K = stereo.rig.camera(name).K
+        K = np.asarray(info.k).reshape(3, 3)
+        assert abs(K[0, 0] / true_K[0, 0] - 1) < 0.01, (name, K, true_K)
+        assert np.allclose(np.asarray(info.r).reshape(3, 3) @ np.asarray(info.r).reshape(3, 3).T,
+                           np.eye(3), atol=1e-9)
+    P_left, P_right = np.asarray(left.p).reshape(3, 4), np.asarray(right.p).reshape(3, 4)
+    assert P_left[0, 3] == 0.0
+    assert np.allclose(P_left[:, :3], P_right[:, :3])  # one rectified camera for both
+    baseline = -P_right[0, 3] / P_right[0, 0]           # Tx = -fx' * baseline
+    assert abs(baseline / BASELINE_M - 1) < 0.01, baseline
+    for f in ("left.yaml", "right.yaml", "camchain.yaml"):
+        assert (tmp_path / f).is_file(), f
+    written = yaml.safe_load((tmp_path / "right.yaml").read_text())
+    assert np.allclose(written["projection_matrix"]["data"], right.p)
+    rig = wait_until(lambda: rig_status(diags, "rigcal", "rig").get("rig views"), 10.0,
+                     "the rig's diagnostics")
+    status = rig_status(diags, "rigcal", "rig")
+    assert int(rig) >= MIN_VIEWS and int(status["shared views left-right"]) >= MIN_VIEWS, status
+    assert int(rig_status(diags, "rigcal", "left")["frames seen"]) > 0
+    assert node.running()
+    assert "Traceback" not in node.output()
+    print(f"stereo node: calibrated in {time.monotonic() - t0:.1f} s, baseline "
+          f"{baseline:.5f} m")
+
+
+def test_one_camera_name_is_refused(tmp_path: Path) -> None:
+    node = rig_node(tmp_path, "rig_bad", "cameras:=[left]")
+    rc = node.wait(30)
+    text = node.output()
+    assert rc == 2, text
+    assert "parameter 'cameras'" in text and "names one camera" in text, text
+    assert "Traceback" not in text, text
