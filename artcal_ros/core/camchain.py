@@ -28,16 +28,15 @@ all its coefficients (Kalibr refuses it; every other reader gets the whole lens)
 
 from __future__ import annotations
 
-import os
-import tempfile
 from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
-from pathlib import Path
 
 import numpy as np
 
 from artcal_ros.core.camera import CameraModel
-from artcal_ros.core.errors import ArtcalError
+from artcal_ros.core.files import (
+    write_text_atomic as write_text_atomic,  # rig files write through it
+)
 
 
 @dataclass(frozen=True)
@@ -100,34 +99,6 @@ def camchain_yaml(cameras: Sequence[ChainCamera]) -> tuple[str, list[str]]:
         lines.append(f"  resolution: [{cam.camera.size[0]}, {cam.camera.size[1]}]")
         lines.append(f"  rostopic: {cam.rostopic}")
     return "\n".join(lines) + "\n", warnings
-
-
-def write_text_atomic(path: str | os.PathLike[str], text: str) -> Path:
-    """Write ``text`` to ``path`` through a temporary file renamed over it (a reader sees
-    the old file or the new one, never a part); ArtcalError naming the path if it fails."""
-    target = Path(path).expanduser()
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp",
-                                   dir=str(target.parent))
-    except OSError as e:
-        raise ArtcalError(f"cannot write {target}: {e.strerror}") from None
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)   # mkstemp makes 0600; a calibration is for sharing
-        os.replace(tmp, target)
-    except OSError as e:
-        Path(tmp).unlink(missing_ok=True)
-        raise ArtcalError(f"cannot write {target}: {e.strerror}") from None
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return target
 
 
 def chain_cameras(names: Sequence[str], cameras: Mapping[str, CameraModel],

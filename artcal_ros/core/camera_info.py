@@ -21,7 +21,6 @@ and K itself for ``equidistant`` (its fisheye rule with alpha = 0).
 from __future__ import annotations
 
 import os
-import tempfile
 from dataclasses import dataclass, replace
 from pathlib import Path
 from typing import Any
@@ -32,6 +31,7 @@ import yaml
 
 from artcal_ros.core.camera import LENS_MODELS, CameraModel, HasCamera
 from artcal_ros.core.errors import ArtcalError, CalibrationError
+from artcal_ros.core.files import write_text_atomic
 
 
 @dataclass(frozen=True)
@@ -170,33 +170,7 @@ def write_camera_info_yaml(path: str | os.PathLike[str],
         CalibrationError: the result holds non-finite numbers (nothing written).
         ArtcalError: the file cannot be written.
     """
-    text = camera_info_yaml(calibration, camera_name)
-    target = Path(path).expanduser()
-    blocking = next((p for p in reversed(target.parents) if p.exists() and not p.is_dir()),
-                    None)
-    if blocking is not None:
-        raise ArtcalError(f"cannot write {target}: {blocking} is a file, not a directory")
-    if target.is_dir():
-        raise ArtcalError(f"cannot write {target}: it is a directory; give a file name")
-    try:
-        target.parent.mkdir(parents=True, exist_ok=True)
-        fd, tmp = tempfile.mkstemp(prefix=f".{target.name}.", suffix=".tmp",
-                                   dir=str(target.parent))
-    except OSError as e:
-        raise ArtcalError(f"cannot write {target}: {e.strerror}") from None
-    try:
-        with os.fdopen(fd, "w") as f:
-            f.write(text)
-            f.flush()
-            os.fsync(f.fileno())
-        os.replace(tmp, target)
-    except OSError as e:
-        Path(tmp).unlink(missing_ok=True)
-        raise ArtcalError(f"cannot write {target}: {e.strerror}") from None
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
-    return target
+    return write_text_atomic(path, camera_info_yaml(calibration, camera_name))
 
 
 def _read_matrix(doc: dict[str, Any], key: str, path: Path, shape: tuple[int, int] | None,

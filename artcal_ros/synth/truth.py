@@ -19,7 +19,6 @@ from __future__ import annotations
 
 import json
 import os
-import tempfile
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -30,6 +29,7 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError
+from artcal_ros.core.files import write_text_atomic
 from artcal_ros.synth.camera import Camera
 
 _DECIMALS = 7
@@ -181,19 +181,7 @@ def write_truth(path: str | Path, camera: Camera, board: Board,
 
 def write_json_atomic(path: str | Path, doc: Any) -> None:
     """Write ``doc`` as compact JSON to ``path`` atomically (a reader never sees a part)."""
-    path = Path(path)
-    fd, tmp = tempfile.mkstemp(prefix=".truth-", suffix=".json", dir=path.parent or ".")
-    try:
-        with os.fdopen(fd, "w") as f:
-            json.dump(doc, f, separators=(",", ":"))
-            f.write("\n")
-        umask = os.umask(0)
-        os.umask(umask)
-        os.chmod(tmp, 0o666 & ~umask)   # mkstemp makes 0600; a result file is for sharing
-        os.replace(tmp, path)
-    except BaseException:
-        Path(tmp).unlink(missing_ok=True)
-        raise
+    write_text_atomic(path, json.dumps(doc, separators=(",", ":")) + "\n")
 
 
 def truth_frame(rec: dict[str, Any]) -> TruthFrame:

@@ -124,3 +124,22 @@ def test_a_read_only_directory_is_named(tmp_path: Path) -> None:
         assert str(ro / "camera.yaml") in str(e.value)
     finally:
         ro.chmod(0o700)
+
+
+def test_every_result_file_gets_the_mode_the_umask_gives(tmp_path: Path) -> None:
+    # one atomic writer serves the YAML, the camchain and truth.json; mkstemp alone would
+    # leave each readable by its owner only
+    from artcal_ros.core.camchain import write_text_atomic
+    from artcal_ros.synth.truth import write_json_atomic
+
+    old = os.umask(0o022)
+    try:
+        written = [write_camera_info_yaml(tmp_path / "camera.yaml", calibration()),
+                   write_text_atomic(tmp_path / "camchain.yaml", "cam0: {}\n")]
+        write_json_atomic(tmp_path / "deep" / "truth.json", {"frames": []})
+        written.append(tmp_path / "deep" / "truth.json")
+    finally:
+        os.umask(old)
+    for path in written:
+        assert path.stat().st_mode & 0o777 == 0o644, path
+    assert (tmp_path / "deep" / "truth.json").read_text() == '{"frames":[]}\n'
