@@ -21,7 +21,8 @@ Figures against the truth: baseline error (%), translation-vector error (mm), ro
 calibrations rectified by one rule, :func:`~artcal_ros.core.calibrate.rectify.rectify_pair`,
 Bouguet's rotations as ``cv2.stereoRectify``, so only the calibrations differ) of the TRUE
 images of every marker corner both cameras see (the calibration's own error, free of
-detection noise), and of each pipeline's own detected corners (what a user measures). The
+detection noise), and of each pipeline's own detected corners (what a user measures); over
+the corners inside both rectified images. The
 per-camera projection difference of the rig solve (RMS over the image of the distance
 between where the true and the estimated camera project the same rays) is compared with a
 single-camera calibration of the same frames (``calibrate``, "alone").
@@ -41,7 +42,7 @@ import numpy as np
 from artcal_ros import calibrate, calibrate_rig
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate.quality import projection_difference
-from artcal_ros.core.calibrate.rectify import rectified_points, rectify_pair
+from artcal_ros.core.calibrate.rectify import epipolar_error, rectify_pair
 from artcal_ros.core.camera import CameraModel
 from artcal_ros.core.detect import Detector
 from artcal_ros.synth import Camera, Photometry, render_view
@@ -80,12 +81,6 @@ def true_pairs(rig: Rig, poses: list[tuple[np.ndarray, np.ndarray]]) -> tuple[np
     return np.concatenate(a_all), np.concatenate(b_all)
 
 
-def _rms_rows(a: np.ndarray, b: np.ndarray) -> float:
-    d = (a - b)[:, 1]
-    d = d[np.isfinite(d)]
-    return float(np.sqrt(np.mean(d ** 2)))
-
-
 def _rotation_error_deg(R_true: np.ndarray, R: np.ndarray) -> float:
     # from the skew part: cv2.Rodrigues rounds angles below 1e-5 rad to zero
     d = R_true.T @ np.asarray(R)
@@ -117,8 +112,7 @@ def ours(rig: Rig, images: dict[str, list[np.ndarray]], truth: tuple[np.ndarray,
     rect = res.rectification[a, b]
     ca, cb = res.cameras[a].camera, res.cameras[b].camera
     out = _errors(rig, R, t)
-    out["epi_true_px"] = _rms_rows(rectified_points(ca, rect.R1, rect.P1, truth[0]),
-                                   rectified_points(cb, rect.R2, rect.P2, truth[1]))
+    out["epi_true_px"] = epipolar_error(ca, cb, rect, *truth)[0]
     out["epi_own_px"] = rect.epipolar_rms_px
     out["baseline_std_pct"] = 100 * res.pairs[a, b].baseline_std_m / res.pairs[a, b].baseline_m
     out["rot_std_deg"] = float(np.linalg.norm(res.pairs[a, b].rotation_std_deg))
@@ -198,8 +192,7 @@ def opencv(rig: Rig, images: dict[str, list[np.ndarray]],
     out = _errors(rig, np.asarray(R), np.asarray(T).ravel())
     rect = rectify_pair(a, b, cam1, cam2, np.asarray(R), np.asarray(T).ravel(),
                         np.concatenate(pa).reshape(-1, 2), np.concatenate(pb).reshape(-1, 2))
-    out["epi_true_px"] = _rms_rows(rectified_points(cam1, rect.R1, rect.P1, truth[0]),
-                                   rectified_points(cam2, rect.R2, rect.P2, truth[1]))
+    out["epi_true_px"] = epipolar_error(cam1, cam2, rect, *truth)[0]
     out["epi_own_px"] = rect.epipolar_rms_px
     out["frames"] = len(obj)
     return out

@@ -32,7 +32,7 @@ import numpy as np
 
 from artcal_ros import calibrate_rig
 from artcal_ros.core.board import Board
-from artcal_ros.core.calibrate.rectify import rectified_points, rectify_pair
+from artcal_ros.core.calibrate.rectify import rectified_differences, rectify_pair
 from artcal_ros.core.camera import CameraModel
 from artcal_ros.core.detect import Detector
 from artcal_ros.core.detections import Detections
@@ -156,9 +156,7 @@ def real_pairs() -> list[str]:
         cells = []
         for a, b in point_sets.values():
             rect = rectify_pair("left", "right", ca, cb, R, t, a, b)
-            rows_diff = (rectified_points(ca, rect.R1, rect.P1, a)
-                         - rectified_points(cb, rect.R2, rect.P2, b))[:, 1]
-            median = float(np.median(np.abs(rows_diff[np.isfinite(rows_diff)])))
+            median = float(np.median(np.abs(rectified_differences(ca, cb, rect, a, b))))
             cells.append(f"{rect.epipolar_rms_px:.4f} / {median:.4f} (f' {rect.P1[0, 0]:.0f})")
         angle = float(np.degrees(np.linalg.norm(cv2.Rodrigues(np.asarray(R))[0])))
         rows.append(f"| {label} | {np.linalg.norm(t) / SQUARE_M:.4f} | {angle:.3f} | {rms:.3f} "

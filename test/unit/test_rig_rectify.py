@@ -43,7 +43,8 @@ def test_rectified_rows_agree_and_tx_convention(preset: str) -> None:
     a, b = _scene(first, second, R, t, seed=1)
     assert len(a) > 1000
     rect = rectify_pair("left", "right", first, second, R, t, a, b)
-    assert rect.epipolar_rms_px < 0.01 and rect.epipolar_points == len(a)
+    # the points inside both rectified images count (most of them)
+    assert rect.epipolar_rms_px < 0.01 and 0.5 * len(a) < rect.epipolar_points <= len(a)
     assert not rect.vertical
     # one rectified camera matrix; the right camera's Tx = -fx' * baseline (camera_calibration)
     assert np.array_equal(rect.P1[:, :3], rect.P2[:, :3])

@@ -16,6 +16,8 @@ right of the first, so ``P2[0, 3] = Tx = -fx' * baseline``.
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import cv2
 import numpy as np
 
@@ -146,11 +148,40 @@ def rectify_pair(first_name: str, second_name: str, first: CameraModel, second: 
     t_rect[2] = 0.0
     P1 = np.hstack([K_rect, np.zeros((3, 1))])
     P2 = np.hstack([K_rect, (K_rect @ t_rect).reshape(3, 1)])
-    a = rectified_points(first, R1, P1, points_first)
-    b = rectified_points(second, R2, P2, points_second)
-    diff = (a - b)[:, 0 if vertical else 1]
-    diff = diff[np.isfinite(diff)]
-    rms = float(np.sqrt(np.mean(diff ** 2))) if len(diff) else float("nan")
-    return Rectification(first_name, second_name, R1, R2, P1, P2, (first.size, second.size),
+    rect = Rectification(first_name, second_name, R1, R2, P1, P2, (first.size, second.size),
                          first.model if first.model == second.model else
-                         f"{first.model}/{second.model}", vertical, rms, len(diff))
+                         f"{first.model}/{second.model}", vertical, float("nan"), 0)
+    rms, n = epipolar_error(first, second, rect, points_first, points_second)
+    return replace(rect, epipolar_rms_px=rms, epipolar_points=n)
+
+
+def epipolar_error(first: CameraModel, second: CameraModel, rect: Rectification,
+                   points_first: np.ndarray, points_second: np.ndarray) -> tuple[float, int]:
+    """(RMS of :func:`rectified_differences`, pixels; their number)."""
+    diff = rectified_differences(first, second, rect, points_first, points_second)
+    rms = float(np.sqrt(np.mean(diff ** 2))) if len(diff) else float("nan")
+    return rms, len(diff)
+
+
+def rectified_differences(first: CameraModel, second: CameraModel, rect: Rectification,
+                          points_first: np.ndarray, points_second: np.ndarray) -> np.ndarray:
+    """(K,) row differences (column differences for a vertical pair) of corresponding
+    points after rectification, pixels, second minus first.
+
+    Only points that land inside both rectified images count: the rows of a point outside
+    them exist in no rectified image (a fisheye's edge, stretched without bound by the
+    rectified pinhole camera, would otherwise decide the figure).
+
+    Args:
+        first, second: the calibrated cameras; rect: their rectification.
+        points_first, points_second: (N, 2) pixels, the same points in both images.
+    """
+    a = rectified_points(first, rect.R1, rect.P1, points_first)
+    b = rectified_points(second, rect.R2, rect.P2, points_second)
+    w, h = rect.image_sizes[0]
+    inside = np.ones(len(a), dtype=bool)
+    for pts in (a, b):
+        with np.errstate(invalid="ignore"):
+            inside &= ((pts[:, 0] >= -0.5) & (pts[:, 0] <= w - 0.5)
+                       & (pts[:, 1] >= -0.5) & (pts[:, 1] <= h - 0.5))
+    return np.asarray((b - a)[inside, 0 if rect.vertical else 1])

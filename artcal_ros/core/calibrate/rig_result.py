@@ -42,7 +42,8 @@ class Rectification:
             their own fisheye undistortion).
         vertical: True for a vertical pair (compare columns, not rows).
         epipolar_rms_px: RMS of the row (column, if vertical) difference of the same
-            board point seen by both cameras in one frame, after rectification, pixels.
+            board point seen by both cameras in one frame, after rectification, pixels;
+            over the points inside both rectified images (the first camera's size).
         epipolar_points: number of such corresponding points.
     """
 
