@@ -1,8 +1,10 @@
 """Rig calibration against renderer truth and against OpenCV's stereo pipeline.
 
-    python -m bench.rig             # rendered webcam and fisheye pairs, 3 seeds each, and the
-                                    # real stereo photographs (a few minutes)
+    python -m bench.rig             # rendered webcam and fisheye pairs, 3 seeds each, a
+                                    # rendered trio, 2 seeds, and the real stereo photographs
+                                    # (about 15 minutes on 2 busy cores)
     python -m bench.rig --quick     # one rendered webcam pair and the real photographs
+    python -m bench.rig --parts trio,real   # only some parts
 
 Rendered (:mod:`artcal_ros.synth.rig`'s ``stereo`` rig: 12 cm baseline, 0.38 deg between the
 optical axes, the right camera a slightly different copy of the left; the default 19 x 9
@@ -26,6 +28,10 @@ the corners inside both rectified images. The
 per-camera projection difference of the rig solve (RMS over the image of the distance
 between where the true and the estimated camera project the same rays) is compared with a
 single-camera calibration of the same frames (``calibrate``, "alone").
+
+The trio (``trio`` rig: cam0 cam1 cam2 15 cm apart, the outer two turned 35 deg outwards so
+that they never see the board together) is solved by ``calibrate_rig`` alone, each pair
+against the truth, cam0-cam2 chained through cam1.
 
 The real photographs are :mod:`bench.rig_real`.
 """
@@ -88,8 +94,9 @@ def _rotation_error_deg(R_true: np.ndarray, R: np.ndarray) -> float:
     return float(np.degrees(np.arctan2(np.linalg.norm(s), 0.5 * (np.trace(d) - 1.0))))
 
 
-def _errors(rig: Rig, R: np.ndarray, t: np.ndarray) -> dict[str, float]:
-    R_true, t_true = rig.extrinsics(*rig.names)
+def _errors(rig: Rig, R: np.ndarray, t: np.ndarray,
+            pair: tuple[str, str] | None = None) -> dict[str, float]:
+    R_true, t_true = rig.extrinsics(*(pair or rig.names))
     base = float(np.linalg.norm(t_true))
     return {"baseline_pct": 100 * (float(np.linalg.norm(t)) - base) / base,
             "t_err_mm": 1e3 * float(np.linalg.norm(np.ravel(t) - t_true)),
@@ -236,15 +243,50 @@ def rendered(quick: bool) -> list[str]:
     return rows
 
 
+def rendered_trio(seeds: list[int]) -> list[str]:
+    """Markdown rows: the trio (outer cameras never see the board together), every pair
+    against the truth; artcal_ros only (OpenCV has no rig solve to chain through cam1)."""
+    rig = Rig.preset("trio", Camera.preset("webcam"))
+    rows = ["| seed | pair | shared frames | baseline error % | t error mm | rotation error deg "
+            "| baseline 1-sigma % | rotation 1-sigma deg | rectified epipolar RMS, own points "
+            "px |", "|---|---|---|---|---|---|---|---|---|"]
+    for seed in seeds:
+        images, _ = render_rig(rig, seed)
+        dets = {}
+        for n in rig.names:
+            detector = Detector(BOARD)
+            dets[n] = [detector.detect(im, source=f"{n}{k}") for k, im in enumerate(images[n])]
+        res = calibrate_rig(dets, BOARD, image_sizes={n: rig.camera(n).size for n in rig.names})
+        for a, b in (("cam0", "cam1"), ("cam1", "cam2"), ("cam0", "cam2")):
+            p = res.pairs[a, b]
+            e = _errors(rig, p.R, p.t, (a, b))
+            epi = res.rectification[a, b].epipolar_rms_px if (a, b) in res.rectification else ""
+            rows.append(f"| {seed} | {a}-{b} | {p.shared_frames} | {e['baseline_pct']:+.4f} | "
+                        f"{e['t_err_mm']:.3f} | {e['rot_err_deg']:.4f} | "
+                        f"{100 * p.baseline_std_m / p.baseline_m:.4f} | "
+                        f"{float(np.linalg.norm(p.rotation_std_deg)):.4f} | "
+                        f"{epi if isinstance(epi, str) else f'{epi:.4f}'} |")
+        print("\n".join(rows[-3:]), flush=True)
+    return rows
+
+
 def main(argv: list[str] | None = None) -> None:
     parser = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     parser.add_argument("--quick", action="store_true", help="one rendered webcam pair only")
-    parser.add_argument("--no-real", action="store_true", help="skip the real photographs")
+    parser.add_argument("--parts", default="stereo,trio,real",
+                        help="comma-separated: stereo (rendered pairs against OpenCV), trio "
+                             "(rendered trio), real (the real photographs)")
     args = parser.parse_args(argv)
-    print("## Rendered stereo pairs\n", flush=True)
-    rows = rendered(args.quick)
-    print("\n" + "\n".join(rows))
-    if not args.no_real:
+    parts = set(args.parts.split(","))
+    if "stereo" in parts:
+        print("## Rendered stereo pairs\n", flush=True)
+        rows = rendered(args.quick)
+        print("\n" + "\n".join(rows))
+    if "trio" in parts and not args.quick:
+        print("\n## Rendered trio, chained through cam1\n", flush=True)
+        rows = rendered_trio([2601, 2602])
+        print("\n" + "\n".join(rows))
+    if "real" in parts:
         from bench.rig_real import real_pairs
 
         print("\n## Real stereo photographs (OpenCV's stereo chessboard samples)\n")
