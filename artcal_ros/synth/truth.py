@@ -22,7 +22,7 @@ import os
 from collections.abc import Sequence
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any
 
 import numpy as np
 
@@ -35,60 +35,25 @@ from artcal_ros.synth.camera import Camera
 _DECIMALS = 7
 
 
-class TruthFields(Protocol):
-    """The truth of one frame's markers and points, as :class:`TruthFrame` and
-    :class:`~artcal_ros.synth.view.RenderedView` both hold it (shapes there)."""
-
-    ids: np.ndarray
-    corners_px: np.ndarray
-    centers_px: np.ndarray
-    inside: np.ndarray
-    side_px: np.ndarray
-    point_ids: np.ndarray
-    points_px: np.ndarray
-    points_inside: np.ndarray
-
-
-def perfect_detections(truth: TruthFields, image_size: tuple[int, int], *, source: str,
-                       min_side_px: float = 0.0) -> Detections:
-    """A frame's true markers wholly inside the image (and its points in it) as perfect
-    :class:`Detections`, optionally only markers whose side is at least ``min_side_px``.
-
-    A marker of unknown side (NaN: a ``truth.json`` written without ``side_px``) is kept:
-    the size filter drops only markers known to be smaller.
-
-    Args:
-        truth: the frame's truth fields.
-        image_size: (width, height), pixels.
-        source: the Detections' source name.
-        min_side_px: shortest marker side kept, pixels.
-    """
-    keep = truth.inside & ~(truth.side_px < min_side_px)
-    pk = truth.points_inside
-    return Detections(truth.ids[keep], truth.corners_px[keep], truth.centers_px[keep],
-                      image_size, source=source, point_ids=truth.point_ids[pk],
-                      points_px=truth.points_px[pk])
-
-
 @dataclass(frozen=True)
-class TruthFrame:
-    """The truth of one frame.
+class FrameTruth:
+    """The exact truth of one frame's markers and points (a render's, or a ``truth.json``
+    frame's).
 
     Attributes:
-        file: image file name (PNG output) or None; stamp_ns: bag time stamp or None.
-        rvec, tvec: (3,) T_cam_board (Rodrigues vector; metres).
-        ids: (N,) int64 markers in front of the camera.
-        corners_px: (N, 4, 2) float64 true corners TL TR BR BL, pixels.
+        rvec, tvec: (3,) the pose T_cam_board (Rodrigues vector; metres).
+        ids: (N,) int64 markers (a render: every marker of the board; a ``truth.json``
+            frame: those in front of the camera).
+        corners_px: (N, 4, 2) float64 true image corners TL TR BR BL, pixels (NaN behind
+            the camera).
         centers_px: (N, 2) float64 true image of each marker's centre, pixels.
-        inside: (N,) bool, marker wholly inside the image.
-        side_px: (N,) float64, shortest side of the marker's image, pixels.
-        point_ids: (M,) int64 board points in front of the camera (saddle points).
-        points_px: (M, 2) float64 true image of each point, pixels.
-        points_inside: (M,) bool, the point is in the image.
+        inside: (N,) bool, the marker's 4 corners are in front of the camera and in the image.
+        side_px: (N,) float64 shortest side of each marker's image, pixels (NaN: unknown).
+        point_ids: (M,) int64 board points (saddle points; empty on a marker grid).
+        points_px: (M, 2) float64 the true image of each point, pixels (NaN behind the camera).
+        points_inside: (M,) bool, the point is in front of the camera and in the image.
     """
 
-    file: str | None
-    stamp_ns: int | None
     rvec: np.ndarray
     tvec: np.ndarray
     ids: np.ndarray
@@ -100,12 +65,43 @@ class TruthFrame:
     points_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
     points_inside: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
+    def perfect_detections(self, image_size: tuple[int, int], *, source: str,
+                           min_side_px: float = 0.0) -> Detections:
+        """The markers wholly inside the image (and the points in it) as perfect
+        :class:`Detections`, optionally only markers whose side is at least ``min_side_px``.
+
+        A marker of unknown side (NaN: a ``truth.json`` written without ``side_px``) is
+        kept: the size filter drops only markers known to be smaller.
+
+        Args:
+            image_size: (width, height), pixels.
+            source: the Detections' source name.
+            min_side_px: shortest marker side kept, pixels.
+        """
+        keep = self.inside & ~(self.side_px < min_side_px)
+        pk = self.points_inside
+        return Detections(self.ids[keep], self.corners_px[keep], self.centers_px[keep],
+                          image_size, source=source, point_ids=self.point_ids[pk],
+                          points_px=self.points_px[pk])
+
+
+@dataclass(frozen=True, kw_only=True)
+class TruthFrame(FrameTruth):
+    """The truth of one frame of a ``truth.json`` (fields of :class:`FrameTruth`).
+
+    Attributes:
+        file: image file name (PNG output) or None; stamp_ns: bag time stamp or None.
+    """
+
+    file: str | None
+    stamp_ns: int | None
+
     def true_detections(self, image_size: tuple[int, int], *,
                         min_side_px: float = 0.0) -> Detections:
         """The markers wholly inside the image (and points in it) as perfect
         :class:`Detections`, optionally only markers whose side is >= ``min_side_px``."""
-        return perfect_detections(self, image_size, source=self.file or f"stamp {self.stamp_ns}",
-                                  min_side_px=min_side_px)
+        return self.perfect_detections(image_size, min_side_px=min_side_px,
+                                       source=self.file or f"stamp {self.stamp_ns}")
 
 
 @dataclass(frozen=True)

@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import math
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -21,47 +21,28 @@ from artcal_ros.synth.photometry import (
 )
 from artcal_ros.synth.poses import marker_truth, point_truth
 from artcal_ros.synth.render import board_coverage
-from artcal_ros.synth.truth import frame_record, perfect_detections
+from artcal_ros.synth.truth import FrameTruth, frame_record
 
 
-@dataclass(frozen=True)
-class RenderedView:
-    """A rendered frame and its truth.
+@dataclass(frozen=True, kw_only=True)
+class RenderedView(FrameTruth):
+    """A rendered frame and its truth (fields of :class:`~artcal_ros.synth.truth.FrameTruth`;
+    ``ids`` every marker of the board, visible or not).
 
     Attributes:
         image: (H, W) uint8 (mono8), (H, W) uint16 (mono16) or (H, W, 3) uint8 (bgr8/rgb8;
             BGR channel order in both cases, like ``images.image_to_numpy``).
         encoding: the image's encoding name.
-        rvec, tvec: (3,) the pose T_cam_board (Rodrigues; metres).
-        ids: (N,) int64 every marker of the board, visible or not.
-        corners_px: (N, 4, 2) float64 true image corners TL TR BR BL, pixels (NaN behind
-            the camera).
-        centers_px: (N, 2) float64 true image of each marker's centre, pixels.
-        inside: (N,) bool, the marker's 4 corners are in front of the camera and in the image.
-        side_px: (N,) float64 shortest side of each marker's image, pixels.
-        point_ids: (M,) int64 every point of the board (saddle points; empty on a marker grid).
-        points_px: (M, 2) float64 the true image of each point, pixels (NaN behind the camera).
-        points_inside: (M,) bool, the point is in front of the camera and in the image.
     """
 
     image: np.ndarray
     encoding: str
-    rvec: np.ndarray
-    tvec: np.ndarray
-    ids: np.ndarray
-    corners_px: np.ndarray
-    centers_px: np.ndarray
-    inside: np.ndarray
-    side_px: np.ndarray
-    point_ids: np.ndarray = field(default_factory=lambda: np.zeros(0, np.int64))
-    points_px: np.ndarray = field(default_factory=lambda: np.zeros((0, 2)))
-    points_inside: np.ndarray = field(default_factory=lambda: np.zeros(0, bool))
 
     def true_detections(self, *, min_side_px: float = 0.0) -> Detections:
         """The markers (and points) inside the image as perfect :class:`Detections` (true
         points), optionally only markers whose image side is at least ``min_side_px``."""
         h, w = self.image.shape[:2]
-        return perfect_detections(self, (w, h), source="synth", min_side_px=min_side_px)
+        return self.perfect_detections((w, h), source="synth", min_side_px=min_side_px)
 
     def truth_record(self, *, file: str | None = None,
                      stamp_ns: int | None = None) -> dict[str, object]:
