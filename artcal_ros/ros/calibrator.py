@@ -77,7 +77,7 @@ from artcal_ros.ros.image_subscription import ImageSubscription, QosChoice
 from artcal_ros.ros.latest import LatestWorker
 from artcal_ros.ros.parameters import check_update, declare_parameters
 from artcal_ros.ros.saved_session import open_session
-from artcal_ros.ros.signals import StopSignals, shut_down, spin_until_stopped
+from artcal_ros.ros.signals import ExecutorSpin, StopSignals, shut_down
 from artcal_ros.ros.transport import use_large_shared_memory
 
 SWITCH_INTERVAL_S = 0.001
@@ -448,12 +448,12 @@ def main(args: list[str] | None = None) -> int:
     gc.freeze()
     executor = MultiThreadedExecutor(num_threads=4)
     executor.add_node(node)
-    spin_thread = None
+    spin = ExecutorSpin(executor)
     try:
-        spin_thread = spin_until_stopped(executor, stop)
+        spin.wait(stop)
     finally:
         node.stop()
-        shut_down(node, executor, spin_thread)
+        shut_down(node, spin)
     return _exit_status_when_threads_done(node, 0)
 
 

@@ -13,9 +13,10 @@ the context), and later signals change nothing.
     stop = StopSignals.install()          # before rclpy.init
     rclpy.init(args=args, signal_handler_options=SignalHandlerOptions.NO)
     ...
-    spin = spin_until_stopped(executor, stop)   # returns on the first SIGINT or SIGTERM
+    spin = ExecutorSpin(executor)         # the executor spins on its own thread
+    spin.wait(stop)                       # returns on the first SIGINT or SIGTERM
     node.stop()                           # the node's own threads: nothing publishes after
-    shut_down(node, executor, spin)       # executor, node, context
+    shut_down(node, spin)                 # executor (and its spin thread), node, context
 """
 
 from __future__ import annotations
@@ -80,6 +81,8 @@ class StopSignals:
         for sig in STOP_SIGNALS:
             signal.signal(sig, signal.SIG_IGN)
         if self.grace_s is not None:
+            # Never joined, on purpose: it ends the process if the stop hangs, and dies
+            # with the process when the stop finishes in time.
             threading.Thread(target=_leave_after, args=(self.grace_s,), name="stop-watchdog",
                              daemon=True).start()
             # The last resort, on a C thread of the interpreter that needs no GIL: a call
@@ -113,48 +116,61 @@ def _leave_after(grace_s: float) -> None:
     os._exit(0)
 
 
-def spin_until_stopped(executor: Executor, stop: StopSignals, *,
-                       poll_s: float = 0.1) -> threading.Thread:
-    """Spin ``executor`` on a daemon thread until a stop signal, or until it ends by itself.
+class ExecutorSpin:
+    """Spins an executor on a thread ("spin executor") that it starts and joins.
 
-    The main thread only waits, so the signal handlers run promptly. The caller then
-    stops its node and calls :func:`shut_down`.
-
-    Returns:
-        the spin thread (still running: :func:`shut_down` ends it).
-
-    Raises:
-        Exception: whatever the executor raised before any stop signal came.
+    Args:
+        executor: the executor, with its nodes added.
     """
-    errors: list[Exception] = []
 
-    def spin() -> None:
+    def __init__(self, executor: Executor) -> None:
+        self.executor = executor
+        self._stop_asked = threading.Event()
+        self._errors: list[Exception] = []
+        self._thread = threading.Thread(target=self._spin, name="spin executor", daemon=True)
+        self._thread.start()
+
+    def _spin(self) -> None:
         try:
-            executor.spin()
+            self.executor.spin()
         except ExternalShutdownException:
             pass
         except Exception as e:  # after a stop signal: the executor being taken down
-            if not stop.is_set():
-                errors.append(e)
+            if not self._stop_asked.is_set():
+                self._errors.append(e)
 
-    thread = threading.Thread(target=spin, name="spin", daemon=True)
-    thread.start()
-    while thread.is_alive() and not stop.event.wait(poll_s):
-        pass
-    if errors:
-        raise errors[0]
-    return thread
+    def wait(self, stop: StopSignals, *, poll_s: float = 0.1) -> None:
+        """Wait until a stop signal, or until the spin ends by itself.
+
+        The main thread only waits here, so the signal handlers run promptly. Then stop
+        the node's own threads and call :func:`shut_down`.
+
+        Raises:
+            Exception: whatever the executor raised before any stop signal came.
+        """
+        while self._thread.is_alive() and not stop.event.wait(poll_s):
+            pass
+        if stop.is_set():
+            self._stop_asked.set()
+        if self._errors:
+            raise self._errors[0]
+
+    def close(self, timeout_s: float = 2.0) -> bool:
+        """Shut the executor down and join the spin thread (up to ``timeout_s`` s each);
+        whether the thread ended."""
+        self._stop_asked.set()
+        self.executor.shutdown(timeout_sec=timeout_s)
+        self._thread.join(timeout_s)
+        return not self._thread.is_alive()
 
 
-def shut_down(node: Node, executor: Executor, spin_thread: threading.Thread | None, *,
-              timeout_s: float = 2.0) -> None:
-    """Take the executor, the node and the context down, in that order, without a word.
+def shut_down(node: Node, spin: ExecutorSpin, *, timeout_s: float = 2.0) -> None:
+    """Take the executor (and its spin thread), the node and the context down, in that
+    order, without a word.
 
     Call it after the node's own threads stopped publishing: nothing may log or publish
     once the context is gone.
     """
-    executor.shutdown(timeout_sec=timeout_s)
-    if spin_thread is not None:
-        spin_thread.join(timeout_s)
+    spin.close(timeout_s)
     node.destroy_node()
     rclpy.try_shutdown()

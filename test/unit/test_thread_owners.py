@@ -117,3 +117,22 @@ def test_closing_the_worker_ends_a_solve_in_progress(tmp_path: Path) -> None:
     late = solver.submit(views(12, seed=5), BOARD, CAM.size, params)
     with pytest.raises(CancelledError):
         late.result(timeout=0)
+
+
+def test_the_executor_spin_thread_is_joined_by_its_close() -> None:
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import SingleThreadedExecutor
+
+    from artcal_ros.ros.signals import ExecutorSpin
+
+    context = Context()
+    rclpy.init(args=[], context=context)
+    try:
+        before = set(threading.enumerate())
+        spin = ExecutorSpin(SingleThreadedExecutor(context=context))
+        assert "spin executor" in started_since(before)
+        assert spin.close(timeout_s=5.0)
+        assert started_since(before) == {}
+    finally:
+        rclpy.try_shutdown(context=context)
