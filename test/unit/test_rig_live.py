@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from typing import Any
+
 import numpy as np
 import pytest
 
@@ -104,3 +106,61 @@ def test_quaternion_of_a_rotation(rotvec: tuple[float, float, float]) -> None:
     axis = v / angle if angle else np.zeros(3)
     expected = np.array([*(np.sin(angle / 2) * axis), np.cos(angle / 2)])
     assert np.allclose([x, y, z, w], expected, atol=1e-12)
+
+
+def _frames(dets: dict[str, list[Any]], k: int, drop: tuple[str, ...] = ()) -> dict[str, Any]:
+    return {n: (None if n in drop else d[k]) for n, d in dets.items()}
+
+
+def test_rig_views_keep_new_rig_views_and_count_what_each_pair_shares() -> None:
+    from artcal_ros.core.live.rig_views import RigViews, RigViewsConfig
+    from test.unit.rig_synth import BOARD, make_rig
+
+    rig, dets = make_rig("stereo", "webcam", 14, seed=251)
+    views = RigViews(BOARD, rig.names, RigViewsConfig(min_views=6))
+    both = [k for k in range(14) if all(len(dets[n][k]) >= 6 for n in rig.names)]
+    kept = [views.add(_frames(dets, k)) for k in range(14)]
+    # a rig view needs two cameras measuring the board: frames aimed at one camera alone
+    # that leave the other with fewer than 6 markers are not rig views
+    assert [k for k in range(14) if kept[k]] == both
+    assert not views.add(_frames(dets, both[0])), "the same view again is nothing new"
+    snap = views.snapshot()
+    assert len(snap.views) == len(both) >= 6
+    assert snap.shared == {("left", "right"): len(both)}
+    assert snap.enough and snap.problem is None and snap.not_connected == ()
+    for n in rig.names:
+        assert snap.readiness[n].views == len(both)
+        assert 0 < snap.readiness[n].coverage <= 1
+    detections = snap.detections()
+    assert [d is not None for d in detections["right"]] == [True] * len(both)
+    assert views.reset() == len(both) and not views.snapshot().views
+
+
+def test_rig_views_name_the_camera_that_shares_too_few_views() -> None:
+    from artcal_ros.core.live.rig_views import RigViews, RigViewsConfig
+    from test.unit.rig_synth import BOARD, make_rig
+
+    rig, dets = make_rig("trio", "webcam", 24, seed=252)
+    views = RigViews(BOARD, rig.names, RigViewsConfig(min_views=3))
+    for k in range(24):   # cam2 is shown the board in one rig view only
+        views.add(_frames(dets, k, drop=("cam2",) if k else ()))
+    snap = views.snapshot()
+    assert snap.not_connected == ("cam2",)
+    assert snap.problem is not None and "cam2 is not connected" in snap.problem
+    assert not snap.enough
+    assert "cam2 is not connected" in snap.summary()
+    assert snap.shared[("cam0", "cam1")] >= 3
+
+
+def test_a_held_rig_view_is_settled_by_its_precise_detections() -> None:
+    from artcal_ros.core.live.rig_views import RigViews
+    from test.unit.rig_synth import BOARD, make_rig
+
+    rig, dets = make_rig("stereo", "webcam", 6, seed=253)
+    k = next(k for k in range(6) if all(len(dets[n][k]) >= 6 for n in rig.names))
+    views = RigViews(BOARD, rig.names)
+    ticket = views.hold(_frames(dets, k))
+    assert ticket is not None and views.pending == 1
+    assert views.hold(_frames(dets, k)) is None, "held views count for novelty"
+    assert views.settle(ticket, _frames(dets, k)) and views.pending == 0
+    assert len(views.snapshot().views) == 1
