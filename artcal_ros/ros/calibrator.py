@@ -49,6 +49,7 @@ import numpy as np
 import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.context import Context
 from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
@@ -95,8 +96,9 @@ class CalibratorNode(Node):
         ParameterError: a parameter is bad (the message names it).
     """
 
-    def __init__(self, *, node_name: str = "calibrator", transport: str = "") -> None:
-        super().__init__(node_name)
+    def __init__(self, *, node_name: str = "calibrator", transport: str = "",
+                 context: Context | None = None) -> None:
+        super().__init__(node_name, context=context)
         self.transport = transport or "as the process's Fast DDS setup"
         self.params: dict[str, ParamValue] = declare_parameters(self)
         self.board = Board.from_params(self.params)

@@ -171,6 +171,7 @@ def shut_down(node: Node, spin: ExecutorSpin, *, timeout_s: float = 2.0) -> None
     Call it after the node's own threads stopped publishing: nothing may log or publish
     once the context is gone.
     """
+    context = node.context
     spin.close(timeout_s)
     node.destroy_node()
-    rclpy.try_shutdown()
+    rclpy.try_shutdown(context=context)
