@@ -141,6 +141,8 @@ def test_stereo_stream_calibrates_the_rig(tmp_path: Path, probe: Probe,
     infos = {n: probe.collect(CameraInfo, f"/{n}/camera_info", LATCHED) for n in ("left",
                                                                                   "right")}
     diags = probe.collect(DiagnosticArray, "/diagnostics", RELIABLE)
+    overlays = {n: probe.collect(Image, f"/rigcal/{n}/overlay", RELIABLE)
+                for n in ("left", "right")}
     node = rig_node(tmp_path, "rigcal", "cameras:=[left,right]", f"min_views:={MIN_VIEWS}")
     answer = calibrate_until_success(probe, "/rigcal/calibrate", timeout=80.0)
     assert "left -> right: baseline" in answer.message, answer.message
@@ -168,6 +170,12 @@ def test_stereo_stream_calibrates_the_rig(tmp_path: Path, probe: Probe,
     status = rig_status(diags, "rigcal", "rig")
     assert int(rig) >= MIN_VIEWS and int(status["shared views left-right"]) >= MIN_VIEWS, status
     assert int(rig_status(diags, "rigcal", "left")["frames seen"]) > 0
+    for n in ("left", "right"):
+        wait_until(lambda n=n: overlays[n], 10.0, f"{n}'s overlay")
+        assert (overlays[n][-1].encoding, overlays[n][-1].width) == ("bgr8", 640)
+    cleared = probe.call(Trigger, "/rigcal/reset")
+    # "cleared N rig views": every view of the solve at least (the stream goes on)
+    assert cleared.success and int(cleared.message.split()[1]) >= int(rig), cleared.message
     assert node.running()
     assert "Traceback" not in node.output()
     print(f"stereo node: calibrated in {time.monotonic() - t0:.1f} s, baseline "

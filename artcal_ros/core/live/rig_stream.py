@@ -38,6 +38,8 @@ from artcal_ros.core.live.tracking import MarkerTracker
 
 __all__ = ["CameraFrame", "RigStream"]
 
+UNPAIRED_AFTER_S = 1.0  # s without a rig frame before single cameras' images are measured
+
 
 @dataclass(frozen=True)
 class CameraFrame:
@@ -100,6 +102,7 @@ class RigStream:
         self._latest: dict[str, CameraFrame] | None = None      # newest rig frame
         self._newest: dict[str, CameraFrame] = {}               # newest frame per camera
         self._last_refresh = -np.inf
+        self._last_paired = -np.inf
         self._generation = 0
         self._stopping = False
         self._busy = False
@@ -133,6 +136,7 @@ class RigStream:
         frames = rig_frame.items
         ticket = self.views.hold({n: f.markers for n, f in frames.items()})
         with self._cond:
+            self._last_paired = time.monotonic()
             generation = self._generation
             self._latest = frames
             if ticket is not None:
@@ -167,7 +171,9 @@ class RigStream:
         frames = self._latest
         if frames is not None:
             self._latest = None
-        elif self._newest:
+        elif self._newest and time.monotonic() - self._last_paired > UNPAIRED_AFTER_S:
+            # no rig frame for a while (a camera silent, stamps apart): the cameras' newest
+            # images still seed their trackers, so each overlay shows its markers
             frames, self._newest = dict(self._newest), {}
         if frames is None:
             return None
