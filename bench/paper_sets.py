@@ -7,8 +7,9 @@ calibrated (``artcal_ros.calibrate``, centres and corners, no cross-validation),
 calibration is evaluated:
 
 - the paper's way: its intrinsics held fixed, every pose of the whole pool re-estimated
-  from the pool's detected points (the same points mode), then the residuals' standard
-  deviation (per coordinate) and largest length; mean over the subsets;
+  from the pool's detected points (the same points mode; those the whole pool's own
+  calibration accepts, within 1 px of it), then the residuals' standard deviation (per
+  coordinate) and largest length; mean over the subsets;
 - against the truth: projection difference from the true camera (RMS over the image),
   mean over the subsets.
 
@@ -19,6 +20,7 @@ the largest size's.
 from __future__ import annotations
 
 import math
+from dataclasses import replace
 from typing import Any
 
 import numpy as np
@@ -32,6 +34,7 @@ from artcal_ros.synth import Camera, Photometry, random_poses, render_view
 from bench.paper_table2 import MODELS
 
 POINTS = ("centers", "corners")
+OUTLIER_PX = 1.0
 METRICS = ("std", "max", "proj RMS")
 
 
@@ -55,6 +58,28 @@ def _errors(est: Any, views: list[ViewPoints], start: list[Any]) -> tuple[float,
     return float(np.sqrt(np.mean(np.var(r, axis=0)))), float(np.linalg.norm(r, axis=1).max())
 
 
+def _accepted(views: list[ViewPoints], ref: Any) -> tuple[list[ViewPoints], list[Any]]:
+    """The pool's points the whole pool's calibration ``ref`` accepts (residual <= 1 px, as
+    its solve drops outliers) and each view's pose under it (None: fewer than 4 points)."""
+    kept, poses = [], []
+    for v in views:
+        pose = None
+        if len(v.image_points) >= 4:
+            try:
+                pose = estimate_pose(v, ref.K, ref.dist, ref.model)
+            except ArtcalError:
+                pose = None
+        if pose is not None:
+            e = np.linalg.norm(v.image_points - ref.project(v.object_points, *pose), axis=1)
+            ok = e <= OUTLIER_PX
+            v = replace(v, object_points=v.object_points[ok], image_points=v.image_points[ok],
+                        marker_ids=v.marker_ids[ok], marker_corners_px=None, sigma_px=None)
+            pose = pose if ok.sum() >= 4 else None
+        kept.append(v)
+        poses.append(pose)
+    return kept, poses
+
+
 def set_sizes_camera(camera: str, sizes: tuple[int, ...], subsets: int, pool: int,
                      seed: int) -> dict[str, Any]:
     """{"camera", "sizes", "<points> <metric>": (S,) mean per size, "failed": solves that
@@ -69,13 +94,7 @@ def set_sizes_camera(camera: str, sizes: tuple[int, ...], subsets: int, pool: in
         views = [view_points(d, board, points, k) for k, d in enumerate(dets)]
         ref = calibrate(dets, board, image_size=cam.size, model=model, points=points,
                         k_coefficients=k_coeffs, cross_validation_folds=0).camera
-        start: list[Any] = []
-        for v in views:
-            try:
-                start.append(estimate_pose(v, ref.K, ref.dist, ref.model) if len(v.image_points)
-                             >= 4 else None)
-            except ArtcalError:
-                start.append(None)
+        views, start = _accepted(views, ref)
         means = {m: [] for m in METRICS}
         failed = 0
         for n in sizes:
