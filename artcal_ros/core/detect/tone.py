@@ -187,41 +187,62 @@ class TonePool:
         self.start = start or ToneCurve("power", DEFAULT_GAMMA)
         self.reset()
 
+    # The pool is one immutable (costs, samples, sides, steady) swapped at once: detection
+    # adds on its thread while the node's diagnostics read the estimate on another.
+    @property
+    def costs(self) -> np.ndarray:
+        return self._pooled[0]
+
+    @property
+    def samples(self) -> int:
+        return self._pooled[1]
+
+    @property
+    def sides(self) -> int:
+        return self._pooled[2]
+
+    @property
+    def steady(self) -> int:
+        return self._pooled[3]
+
     def reset(self) -> None:
         """Forget every frame (a different camera)."""
-        self.costs = np.zeros(len(CANDIDATES))
-        self.samples = 0
-        self.sides = 0
-        self.steady = 0
+        self._pooled: tuple[np.ndarray, int, int, int] = (np.zeros(len(CANDIDATES)), 0, 0, 0)
 
     def add(self, costs: np.ndarray, samples: int, sides: int) -> None:
         """Add one frame's (C,) candidate costs over ``samples`` samples of ``sides`` sides."""
         costs = np.asarray(costs, dtype=np.float64)
         if sides == 0 or not np.isfinite(costs).all() or costs.min() <= 0.0:
             return
-        before = self.estimate().curve
-        self.costs = self.costs + sides * costs / costs.min()
-        self.samples += int(samples)
-        self.sides += int(sides)
-        self.steady = 0 if differs(self.estimate().curve, before) else self.steady + sides
+        old_costs, old_samples, old_sides, steady = self._pooled
+        before = self._estimate(old_costs, old_sides).curve
+        new_costs = old_costs + sides * costs / costs.min()
+        new_sides = old_sides + int(sides)
+        changed = differs(self._estimate(new_costs, new_sides).curve, before)
+        self._pooled = (new_costs, old_samples + int(samples), new_sides,
+                        0 if changed else steady + sides)
 
     @property
     def settled(self) -> bool:
         """The curve in use has held over enough sides that further frames need not probe."""
         return self.steady >= self.SETTLED_SIDES
 
-    def _start_cost(self) -> float:
+    def _start_cost(self, costs: np.ndarray) -> float:
         """The pooled cost of the start curve."""
         if self.start.kind == "srgb":
-            return float(self.costs[len(GAMMA_GRID)])
-        return float(np.interp(self.start.gamma, GAMMA_GRID, self.costs[:len(GAMMA_GRID)]))
+            return float(costs[len(GAMMA_GRID)])
+        return float(np.interp(self.start.gamma, GAMMA_GRID, costs[:len(GAMMA_GRID)]))
 
     def estimate(self) -> ToneEstimate:
         """The curve to use so far (the start curve before, or without, strong evidence)."""
-        if self.sides == 0:
+        costs, _, sides, _ = self._pooled
+        return self._estimate(costs, sides)
+
+    def _estimate(self, costs: np.ndarray, sides: int) -> ToneEstimate:
+        if sides == 0:
             return ToneEstimate(self.start, float("inf"), True, 0, self.start)
         n_pow = len(GAMMA_GRID)
-        power = self.costs[:n_pow]
+        power = costs[:n_pow]
         grid = np.asarray(GAMMA_GRID)
         i = int(np.argmin(power))
         j = min(max(i, 1), n_pow - 2)
@@ -235,7 +256,7 @@ class TonePool:
         # the cost is a sum of squared residuals; a side's residuals are correlated
         # (one model error shapes all its profiles), so a side, not a sample, is the
         # independent unit: variance best / sides, information 2 c2 / (2 variance)
-        var = max(best, 1e-12) / max(self.sides - 2, 1)
+        var = max(best, 1e-12) / max(sides - 2, 1)
         stat = float(np.sqrt(var / c2)) if c2 > 0 else float("inf")
         sigma = float(np.hypot(stat, _SYSTEMATIC_SIGMA))
         fitted = ToneCurve("power", round(gamma, 3))
@@ -244,12 +265,12 @@ class TonePool:
         margin = SWITCH_GAMMA_BELOW if gamma < self.start.gamma else SWITCH_GAMMA
         far = ((abs(gamma - self.start.gamma) > margin or self.start.kind == "srgb")
                and np.isfinite(stat) and gamma < grid[-1])
-        if self.costs[n_pow] < best:
-            fitted, best, far = CANDIDATES[n_pow], float(self.costs[n_pow]), True
-        start = self._start_cost()
+        if costs[n_pow] < best:
+            fitted, best, far = CANDIDATES[n_pow], float(costs[n_pow]), True
+        start = self._start_cost(costs)
         strong = (far and start > (1.0 + SWITCH_COST) * best
                   and start - best > SWITCH_SIGMAS ** 2 * var)
-        return ToneEstimate(fitted if strong else self.start, sigma, True, self.sides, fitted)
+        return ToneEstimate(fitted if strong else self.start, sigma, True, sides, fitted)
 
 
 def differs(a: ToneCurve, b: ToneCurve) -> bool:
