@@ -336,9 +336,10 @@ class RigCalibratorNode(Node):
             client = self.set_info_clients[n]
             ok, text = _call_set_camera_info(client, self.infos[n], self._stopping)
             results.append((ok, f"{n}: {text}"))
-        ok = all(r[0] for r in results)
-        said = "; ".join(r[1] for r in results)
-        return ok, f"{message}\n{'committed' if ok else 'NOT all committed'}: {said}"
+        if all(r[0] for r in results):
+            return True, f"{message}\ncommitted to " + ", ".join(
+                self.resolve_service_name(c.srv_name) for c in self.set_info_clients.values())
+        return False, f"{message}\nNOT all committed: " + "; ".join(r[1] for r in results)
 
     def _on_reset(self, request: Trigger.Request, response: Trigger.Response
                   ) -> Trigger.Response:

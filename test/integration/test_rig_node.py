@@ -3,7 +3,8 @@ console script, fed rendered stereo frames of a known rig.
 
 Checked against the renderer's truth: both CameraInfos (the right one's P with
 Tx = -fx' * baseline), the baseline within 1 % of the true 0.12 m, the files written, the
-rig's diagnostics; one camera name alone is refused at start-up, naming the parameter.
+rig's diagnostics and overlays, both drivers' set_camera_info called (commit), ~/reset; one
+camera name alone is refused at start-up, naming the parameter.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from __future__ import annotations
 import threading
 import time
 from collections.abc import Iterator
+from functools import partial
 from pathlib import Path
 from typing import Any
 
@@ -19,6 +21,7 @@ import pytest
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray
 from sensor_msgs.msg import CameraInfo, Image
+from sensor_msgs.srv import SetCameraInfo
 from std_srvs.srv import Trigger
 
 from test.integration.qos import LATCHED, RELIABLE
@@ -143,10 +146,29 @@ def test_stereo_stream_calibrates_the_rig(tmp_path: Path, probe: Probe,
     diags = probe.collect(DiagnosticArray, "/diagnostics", RELIABLE)
     overlays = {n: probe.collect(Image, f"/rigcal/{n}/overlay", RELIABLE)
                 for n in ("left", "right")}
-    node = rig_node(tmp_path, "rigcal", "cameras:=[left,right]", f"min_views:={MIN_VIEWS}")
-    answer = calibrate_until_success(probe, "/rigcal/calibrate", timeout=80.0)
+    # the drivers' set_camera_info, which commit calls
+    committed: dict[str, list[CameraInfo]] = {"left": [], "right": []}
+
+    def serve(name: str, request: Any, response: Any) -> Any:
+        committed[name].append(request.camera_info)
+        response.success = True
+        return response
+
+    services = [probe.node.create_service(SetCameraInfo, f"/{n}/set_camera_info",
+                                          partial(serve, n)) for n in committed]
+    node = rig_node(tmp_path, "rigcal", "cameras:=[left,right]", f"min_views:={MIN_VIEWS}",
+                    "commit:=true")
+    try:
+        answer = calibrate_until_success(probe, "/rigcal/calibrate", timeout=80.0)
+    finally:
+        for service in services:
+            probe.node.destroy_service(service)
     assert "left -> right: baseline" in answer.message, answer.message
+    assert "committed to /left/set_camera_info, /right/set_camera_info" in answer.message, \
+        answer.message
     wait_until(lambda: infos["left"] and infos["right"], 20.0, "both camera_info messages")
+    for n in committed:
+        assert len(committed[n]) == 1 and list(committed[n][0].p) == list(infos[n][-1].p)
     left, right = infos["left"][-1], infos["right"][-1]
     assert (left.header.frame_id, right.header.frame_id) == ("left_optical", "right_optical")
     for info, name in ((left, "left"), (right, "right")):
