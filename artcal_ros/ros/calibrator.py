@@ -77,6 +77,7 @@ from artcal_ros.ros.diagnostics import Counters, diagnostic_array
 from artcal_ros.ros.image_subscription import ImageSubscription, QosChoice
 from artcal_ros.ros.latest import LatestWorker
 from artcal_ros.ros.parameters import check_update, declare_parameters
+from artcal_ros.ros.rig_calibrator import rig_main, rig_requested
 from artcal_ros.ros.saved_session import open_session
 from artcal_ros.ros.signals import ExecutorSpin, StopSignals, shut_down
 from artcal_ros.ros.transport import use_large_shared_memory
@@ -439,6 +440,8 @@ def main(args: list[str] | None = None) -> int:
     if not init_ros(args, HELP.program, signal_handler_options=SignalHandlerOptions.NO):
         return 2
     try:
+        if rig_requested():  # cameras: two or more names
+            return rig_main(transport, stop)
         node = CalibratorNode(transport=transport)
     except (ParameterError, ArtcalError) as e:
         rclpy.logging.get_logger("calibrator").fatal(f"refusing to start: {e}")

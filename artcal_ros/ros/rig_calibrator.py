@@ -15,15 +15,16 @@ Interface (names relative, remappable), for each camera ``a`` of ``cameras``:
 Images of different cameras stamped within ``sync_tolerance`` form a rig frame
 (:mod:`~artcal_ros.core.live.rig_frames`); a rig frame in which two or more cameras measure the
 board is a rig view. Each image callback (one callback group per camera) tracks its camera's
-markers and draws its overlay; :class:`~artcal_ros.core.live.rig_stream.RigStream`'s one
-worker thread measures new rig views precisely and runs the solve
-(:func:`~artcal_ros.core.calibrate.rig.calibrate_rig`), which ``~/calibrate`` waits for.
-With ``calibrate.fix_intrinsics`` the cameras' intrinsics are read at start-up from
-``<dir>/<camera>.yaml`` and kept; only the extrinsics are solved.
+markers and draws its overlay; ``RigStream``'s one worker thread measures new rig views
+precisely and runs ``calibrate_rig``, which ``~/calibrate`` waits for. With
+``calibrate.fix_intrinsics`` the intrinsics in ``<dir>/<camera>.yaml`` are kept.
 """
 
 from __future__ import annotations
 
+import gc
+import os
+import sys
 import threading
 import time
 from concurrent.futures import CancelledError
@@ -31,7 +32,9 @@ from functools import partial
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
@@ -44,7 +47,9 @@ from artcal_ros.core.calibrate.rig_files import rig_solve_kwargs, write_rig_file
 from artcal_ros.core.calibrate.rig_result import RigResult
 from artcal_ros.core.camera_info import CameraInfoData, read_camera_info_yaml
 from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
+from artcal_ros.core.images import image_to_numpy
 from artcal_ros.core.images.broken_frames import broken_cause
+from artcal_ros.core.images.compressed import compressed_to_numpy
 from artcal_ros.core.live.overlay import render_overlay
 from artcal_ros.core.live.rig_stream import RigStream
 from artcal_ros.core.live.rig_views import RigSnapshot, RigViews, RigViewsConfig
@@ -53,7 +58,13 @@ from artcal_ros.ros import msgs
 from artcal_ros.ros.diagnostics import Counters
 from artcal_ros.ros.image_subscription import ImageSubscription
 from artcal_ros.ros.parameters import check_update, declare_parameters
-from artcal_ros.ros.rig_outputs import rig_diagnostics, tf_static_message
+from artcal_ros.ros.rig_outputs import (
+    call_set_camera_info,
+    rig_diagnostics,
+    tf_available,
+    tf_static_message,
+)
+from artcal_ros.ros.signals import ExecutorSpin, StopSignals, shut_down
 
 SOLVE_TIMEOUT_S = 600.0
 LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
@@ -64,24 +75,22 @@ OVERLAY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
 
 
 def rig_requested() -> bool:
-    """Whether the calibrator's ``cameras`` parameter names a rig (two or more cameras).
+    """Whether the calibrator's ``cameras`` parameter names two or more cameras (a rig).
 
-    Reads the parameters as the calibrator node will see them (its name, remaps, parameter
-    files and ``-p``) on a short-lived node of the same name.
-
-    Raises:
-        ParameterError: a parameter is bad (the message names it).
+    Read as the calibrator will see it (name, remaps, parameter files, ``-p``) on a short-lived
+    node of its name; other values are the single node's to refuse, naming the parameter.
     """
     probe = Node("calibrator", start_parameter_services=False, enable_rosout=False)
     try:
-        return len(declare_parameters(probe)["cameras"]) >= 2  # type: ignore[arg-type]
+        value: Any = probe.declare_parameter("cameras", [], ParameterDescriptor(
+            dynamic_typing=True)).value
     finally:
         probe.destroy_node()
+    return isinstance(value, list | tuple) and len(value) >= 2
 
 
 class RigCalibratorNode(Node):
-    """Collects rig views from ``<camera>/image`` of each camera and solves the rig on
-    ``~/calibrate``.
+    """Collects rig views from each ``<camera>/image``, solves the rig on ``~/calibrate``.
 
     Raises:
         ParameterError: a parameter is bad, or a camera's intrinsics to keep are missing.
@@ -123,7 +132,7 @@ class RigCalibratorNode(Node):
                           for n in names}
         self.diag_pub = self.create_publisher(DiagnosticArray, "/diagnostics", 10)
         self.tf_pub: Any = None
-        if _tf_available():
+        if tf_available():
             from tf2_msgs.msg import TFMessage
 
             self.tf_pub = self.create_publisher(TFMessage, "/tf_static", LATCHED_QOS)
@@ -174,12 +183,8 @@ class RigCalibratorNode(Node):
                 raise ParameterError(f"parameter 'calibrate.fix_intrinsics': {e}") from None
         return fixed
 
-    # --- images -----------------------------------------------------------------------
     def _on_image(self, name: str, msg: Image | CompressedImage) -> None:
         # The camera's own callback group: one frame of a camera at a time, cameras at once.
-        from artcal_ros.core.images import image_to_numpy
-        from artcal_ros.core.images.compressed import compressed_to_numpy
-
         counters = self.counters[name]
         counters.frame_seen()
         if self._stopping.is_set():
@@ -212,7 +217,7 @@ class RigCalibratorNode(Node):
         for sub in self.images.values():
             sub.refresh()
 
-    def _on_qos_change(self, name: str, choice: Any) -> None:
+    def _on_qos_change(self, name: str, choice: Any) -> None:  # logged as the single node
         self.get_logger().info(f"{name} image qos: {choice.text()}")
 
     def _on_qos_incompatible(self, text: str) -> None:
@@ -334,7 +339,7 @@ class RigCalibratorNode(Node):
         results = []
         for n in self.names:
             client = self.set_info_clients[n]
-            ok, text = _call_set_camera_info(client, self.infos[n], self._stopping)
+            ok, text = call_set_camera_info(client, self.infos[n], self._stopping)
             results.append((ok, f"{n}: {text}"))
         if all(r[0] for r in results):
             return True, f"{message}\ncommitted to " + ", ".join(
@@ -356,39 +361,39 @@ class RigCalibratorNode(Node):
             self.views.config = self._views_config(values)
         return result
 
-    def stop(self, timeout: float = 2.0) -> bool:
+    def stop(self, timeout: float = 1.0) -> list[str]:
         """Publish nothing more and stop the worker thread, joined for up to ``timeout``
-        seconds (a detection or solve in progress finishes first); whether it is still
-        running. Calling it again waits again."""
+        seconds (a detection or solve in progress finishes first). Call it again to wait
+        longer. Returns the names of the node's threads still running."""
         self._stopping.set()
         with self._output_lock:
             self._closed = True
-        return self.stream.stop(timeout=timeout)
+        return [self.stream.thread_name] if self.stream.stop(timeout=timeout) else []
 
 
-def _tf_available() -> bool:
+def rig_main(transport: str, stop: StopSignals) -> int:
+    """Run the rig node until a stop signal (the calibrator's ``main`` with ``cameras``,
+    after ``rclpy.init``); the exit status.
+
+    Raises:
+        ParameterError: a parameter is bad (the caller refuses to start).
+    """
+    node = RigCalibratorNode(transport=transport)
+    gc.collect()
+    gc.freeze()  # what start-up made lives as long as the process
+    # a thread per camera's images, one for the services, one for the timers
+    executor = MultiThreadedExecutor(num_threads=len(node.names) + 2)
+    executor.add_node(node)
+    spin = ExecutorSpin(executor)
     try:
-        import tf2_msgs.msg  # noqa: F401
-    except ImportError:
-        return False
-    return True
-
-
-def _call_set_camera_info(client: Any, info: CameraInfo, stopping: threading.Event
-                          ) -> tuple[bool, str]:
-    """Send ``info`` to a driver's set_camera_info; (success, what happened)."""
-    name = client.srv_name
-    if not client.wait_for_service(timeout_sec=2.0):
-        return False, f"no {name} service (is the camera driver running?)"
-    done = threading.Event()
-    future = client.call_async(SetCameraInfo.Request(camera_info=info))
-    future.add_done_callback(lambda _: done.set())
-    t0 = time.monotonic()
-    while not done.wait(0.1):
-        if stopping.is_set() or time.monotonic() - t0 > 10.0:
-            return False, f"{name} did not answer"
-    answer = future.result()
-    if answer is None or not answer.success:
-        return False, f"{name}: {answer.status_message if answer is not None else 'no answer'}"
-    return True, f"committed to {name}"
+        spin.wait(stop)
+    finally:
+        node.stop()
+        shut_down(node, spin)
+    if node.stop(2.0):
+        # a daemon thread still inside OpenCV when the interpreter finalizes can abort it
+        sys.stdout.flush()
+        sys.stderr.flush()
+        os._exit(0)
+    return 0
 

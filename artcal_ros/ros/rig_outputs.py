@@ -1,4 +1,5 @@
-"""The rig calibrator's messages: its /diagnostics and the extrinsics on /tf_static.
+"""The rig calibrator's messages: its /diagnostics, the extrinsics on /tf_static, and the
+result sent to a camera driver's set_camera_info.
 
 Diagnostics: one status per camera (``<node>: <camera>``: frames seen, processed, broken,
 measured, markers in the last frame, views, coverage) and one for the rig (``<node>: rig``:
@@ -7,11 +8,15 @@ measured, markers in the last frame, views, coverage) and one for the rig (``<no
 
 from __future__ import annotations
 
+import threading
+import time
 from collections.abc import Mapping
 from typing import Any
 
 from builtin_interfaces.msg import Time
 from diagnostic_msgs.msg import DiagnosticArray, DiagnosticStatus, KeyValue
+from sensor_msgs.msg import CameraInfo
+from sensor_msgs.srv import SetCameraInfo
 from std_msgs.msg import Header
 
 from artcal_ros.core.calibrate.rig_files import quaternion_xyzw
@@ -97,3 +102,32 @@ def tf_static_message(rig: RigResult, frame_ids: Mapping[str, str], stamp: Time)
                                                     z=float(T[2, 3])),
                                 rotation=Quaternion(x=x, y=y, z=z, w=w))))
     return TFMessage(transforms=transforms)
+
+
+def tf_available() -> bool:
+    """Whether tf2_msgs is installed (a native ROS install; not among the pip wheels)."""
+    try:
+        import tf2_msgs.msg  # noqa: F401
+    except ImportError:
+        return False
+    return True
+
+
+def call_set_camera_info(client: Any, info: CameraInfo, stopping: threading.Event
+                          ) -> tuple[bool, str]:
+    """Send ``info`` to a driver's set_camera_info; (success, what happened)."""
+    name = client.srv_name
+    if not client.wait_for_service(timeout_sec=2.0):
+        return False, f"no {name} service (is the camera driver running?)"
+    done = threading.Event()
+    future = client.call_async(SetCameraInfo.Request(camera_info=info))
+    future.add_done_callback(lambda _: done.set())
+    t0 = time.monotonic()
+    while not done.wait(0.1):
+        if stopping.is_set() or time.monotonic() - t0 > 10.0:
+            return False, f"{name} did not answer"
+    answer = future.result()
+    if answer is None or not answer.success:
+        return False, f"{name}: {answer.status_message if answer is not None else 'no answer'}"
+    return True, f"committed to {name}"
+

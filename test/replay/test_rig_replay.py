@@ -71,6 +71,8 @@ def test_stereo_bag_replayed_calibrates_the_rig(tmp_path: Path, probe: Probe) ->
     except AssertionError as e:
         raise AssertionError(f"{e}; answers: {answers[-2:]}") from None
     took = time.monotonic() - t0
+    outliers = re.search(r"(\d+) outlier points", answers[-1])
+    assert outliers and int(outliers.group(1)) < 50, answers[-1]   # views of one instant each
     wait_until(lambda: infos["left"] and infos["right"], 20.0, "both camera_info messages")
     assert player.wait(30) == 0, player.output()   # it ends after the pass that calibrated
     rig = Rig.preset("stereo", Camera.preset("webcam"))

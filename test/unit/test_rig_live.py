@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from typing import Any
 
 import numpy as np
@@ -164,3 +165,62 @@ def test_a_held_rig_view_is_settled_by_its_precise_detections() -> None:
     assert views.hold(_frames(dets, k)) is None, "held views count for novelty"
     assert views.settle(ticket, _frames(dets, k)) and views.pending == 0
     assert len(views.snapshot().views) == 1
+
+
+@pytest.fixture(scope="module")
+def stereo_images() -> list[dict[str, np.ndarray]]:
+    """Three rendered 640x480 stereo frames in which both cameras see the board."""
+    from artcal_ros.synth import Camera
+    from artcal_ros.synth.rig import Rig, rig_poses
+    from artcal_ros.synth.view import render_view
+    from test.unit.rig_synth import BOARD
+
+    rig = Rig.preset("stereo", Camera.preset("webcam"))
+    out = []
+    for pose in rig_poses(BOARD, rig, 8, np.random.default_rng(254), partial_fraction=0.0):
+        views = {n: render_view(BOARD, rig.camera(n), *rig.camera_pose(n, pose)) for n in
+                 rig.names}
+        if all(len(v.ids) > 20 for v in views.values()):
+            out.append({n: v.image for n, v in views.items()})
+    return out[:3]
+
+
+def test_rig_stream_makes_rig_views_of_paired_images_only(
+        stereo_images: list[dict[str, np.ndarray]]) -> None:
+    from artcal_ros.core.detect import Detector
+    from artcal_ros.core.live.rig_stream import UNPAIRED_AFTER_S, RigStream
+    from artcal_ros.core.live.rig_views import RigViews
+    from test.unit.rig_synth import BOARD
+
+    names = ("left", "right")
+    views = RigViews(BOARD, names)
+    detectors = {n: Detector(BOARD) for n in names}
+    stream = RigStream(BOARD, names, {n: d.detect for n, d in detectors.items()}, views,
+                       10 * MS, refresh_s=0.0)
+    try:
+        # right 50 ms after left: never one rig frame. The newest images are measured (they
+        # seed the trackers) but, of two instants, make no rig view.
+        t = 10**9
+        for frame in stereo_images[:2]:
+            stream.offer("left", frame["left"], t)
+            stream.offer("right", frame["right"], t + 50 * MS)
+            t += 100 * MS
+        time.sleep(UNPAIRED_AFTER_S)
+        stream.offer("left", stereo_images[0]["left"], t)   # wakes the worker
+        wait_for(lambda: min(stream.measured().values()) >= 1, "both cameras measured")
+        assert stream.pairer.paired == 0 and views.snapshot().views == []
+        # within the tolerance: rig frames, measured into rig views
+        for k, frame in enumerate(stereo_images):
+            for n in names:
+                stream.offer(n, frame[n], 10**10 + k * 100 * MS + (3 * MS if n == "right" else 0))
+            wait_for(lambda k=k: len(views.snapshot().views) >= k + 1, f"rig view {k + 1}")
+        assert stream.pairer.paired == 3
+    finally:
+        assert not stream.stop(timeout=10.0), "the worker thread ended"
+
+
+def wait_for(predicate: Any, what: str, timeout: float = 60.0) -> None:
+    deadline = time.monotonic() + timeout
+    while not predicate():
+        assert time.monotonic() < deadline, f"timed out waiting for {what}"
+        time.sleep(0.02)

@@ -63,11 +63,14 @@ class _Job:
     frames: dict[str, CameraFrame]   # the cameras' frames to measure
     ticket: int | None               # a held rig view, or None (a refresh)
     generation: int
+    paired: bool = True              # False: each camera's newest image, not one instant
     call: tuple[Callable[[], Any], Future[Any]] | None = None
 
 
 class RigStream:
     """Tracked markers for every camera's frames, rig views measured in the background.
+
+    The worker thread is named :attr:`thread_name`.
 
     Args:
         board: the calibration board.
@@ -88,6 +91,7 @@ class RigStream:
                  on_measured: Callable[[dict[str, Detections], bool], None] | None = None,
                  on_error: Callable[[BaseException], None] | None = None,
                  refresh_s: float = 0.3, max_queued: int = 8) -> None:
+        self.thread_name = "measure rig views"
         self.names = tuple(names)
         self.views = views
         self.trackers = {n: MarkerTracker(board) for n in self.names}
@@ -109,7 +113,7 @@ class RigStream:
         self._measured = {n: 0 for n in self.names}
         self._refused = 0
         self._commit = threading.Lock()
-        self._thread = threading.Thread(target=self._run, name="detect-precise", daemon=True)
+        self._thread = threading.Thread(target=self._run, name=self.thread_name, daemon=True)
         self._thread.start()
 
     # --- fast tier -------------------------------------------------------------------
@@ -157,7 +161,7 @@ class RigStream:
             if self._stopping:
                 future.set_exception(RuntimeError("the rig stream is stopped"))
                 return future
-            self._queue.append(_Job({}, None, self._generation, (call, future)))
+            self._queue.append(_Job({}, None, self._generation, call=(call, future)))
             self._cond.notify()
         return future
 
@@ -168,17 +172,18 @@ class RigStream:
             return self._queue.popleft()
         if time.monotonic() - self._last_refresh < self.refresh_s:
             return None
-        frames = self._latest
+        frames, paired = self._latest, True
         if frames is not None:
             self._latest = None
         elif self._newest and time.monotonic() - self._last_paired > UNPAIRED_AFTER_S:
             # no rig frame for a while (a camera silent, stamps apart): the cameras' newest
-            # images still seed their trackers, so each overlay shows its markers
-            frames, self._newest = dict(self._newest), {}
+            # images still seed their trackers, so each overlay shows its markers; taken at
+            # different instants, they never make a rig view
+            frames, paired, self._newest = dict(self._newest), False, {}
         if frames is None:
             return None
         self._last_refresh = time.monotonic()
-        return _Job(frames, None, self._generation)
+        return _Job(frames, None, self._generation, paired)
 
     def _run(self) -> None:
         while True:
@@ -235,7 +240,7 @@ class RigStream:
             if job.ticket is not None:
                 kept = self.views.settle(job.ticket, dets)
             else:
-                kept = len(dets) >= 2 and self.views.add(dets)
+                kept = job.paired and self.views.add(dets)
         if self._on_measured is not None:
             self._on_measured(dets, kept)
 
