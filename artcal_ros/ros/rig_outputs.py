@@ -19,7 +19,7 @@ from sensor_msgs.msg import CameraInfo
 from sensor_msgs.srv import SetCameraInfo
 from std_msgs.msg import Header
 
-from artcal_ros.core.calibrate.rig_files import quaternion_xyzw
+from artcal_ros.core.calibrate.rig_files import frame_transforms
 from artcal_ros.core.calibrate.rig_result import RigResult
 from artcal_ros.core.live.rig_views import RigSnapshot
 from artcal_ros.ros.diagnostics import CountsReport
@@ -81,28 +81,20 @@ def rig_diagnostics(node_name: str, counts: Mapping[str, CountsReport],
 
 
 def tf_static_message(rig: RigResult, frame_ids: Mapping[str, str], stamp: Time) -> Any:
-    """A tf2_msgs/TFMessage: each camera's frame in the reference camera's
-    (T_reference_camera, metres), or None when tf2_msgs is not installed or two cameras
-    share a frame id (no transform can join a frame to itself)."""
+    """A tf2_msgs/TFMessage of :func:`~artcal_ros.core.calibrate.rig_files.frame_transforms`
+    (each camera's frame in the reference camera's), or None when tf2_msgs is not installed
+    or two cameras share a frame id."""
     try:
         from geometry_msgs.msg import Quaternion, Transform, TransformStamped, Vector3
         from tf2_msgs.msg import TFMessage
     except ImportError:
         return None
-    ref = rig.reference
-    if len({frame_ids[n] for n in rig.names}) < len(rig.names):
-        return None
-    transforms = []
-    for n in rig.names[1:]:
-        T = rig.transform(n, ref)   # T_ref_n: a point in n's frame -> the reference's
-        x, y, z, w = quaternion_xyzw(T[:3, :3])
-        transforms.append(TransformStamped(
-            header=Header(stamp=stamp, frame_id=frame_ids[ref]), child_frame_id=frame_ids[n],
-            transform=Transform(translation=Vector3(x=float(T[0, 3]), y=float(T[1, 3]),
-                                                    z=float(T[2, 3])),
-                                rotation=Quaternion(x=x, y=y, z=z, w=w))))
-    return TFMessage(transforms=transforms)
-
+    transforms = [TransformStamped(
+        header=Header(stamp=stamp, frame_id=parent), child_frame_id=child,
+        transform=Transform(translation=Vector3(x=float(t[0]), y=float(t[1]), z=float(t[2])),
+                            rotation=Quaternion(x=q[0], y=q[1], z=q[2], w=q[3])))
+        for parent, child, t, q in frame_transforms(rig, frame_ids)]
+    return TFMessage(transforms=transforms) if transforms else None
 
 def tf_available() -> bool:
     """Whether tf2_msgs is installed (a native ROS install; not among the pip wheels)."""

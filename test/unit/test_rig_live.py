@@ -224,3 +224,28 @@ def wait_for(predicate: Any, what: str, timeout: float = 60.0) -> None:
     while not predicate():
         assert time.monotonic() < deadline, f"timed out waiting for {what}"
         time.sleep(0.02)
+
+
+def test_frame_transforms_place_each_camera_in_the_first_as_tf_does() -> None:
+    import cv2
+
+    from artcal_ros import calibrate_rig
+    from artcal_ros.core.calibrate.rig_files import frame_transforms
+    from test.unit.rig_synth import BOARD, make_rig
+
+    rig, dets = make_rig("stereo", "webcam", 12, seed=255)
+    res = calibrate_rig(dets, BOARD, image_sizes={n: rig.camera(n).size for n in rig.names})
+    ids = {"left": "left_optical", "right": "right_optical"}
+    [(parent, child, t, q)] = frame_transforms(res, ids)
+    assert (parent, child) == ("left_optical", "right_optical")
+    # T_left_right: its translation is the right camera's centre in left's frame, 0.12 m
+    # along left's x axis (the stereo preset); its rotation maps right's axes into left's
+    R_right_left, t_right_left = rig.extrinsics("left", "right")
+    assert np.allclose(t, -R_right_left.T @ t_right_left, atol=1e-4)
+    assert np.allclose(t, [0.12, 0.0, 0.0], atol=1e-3)
+    x, y, z, w = q
+    angle = 2 * np.arctan2(np.linalg.norm([x, y, z]), w)
+    axis = np.array([x, y, z]) / np.linalg.norm([x, y, z])
+    R = cv2.Rodrigues(angle * axis)[0]
+    assert np.allclose(R, R_right_left.T, atol=1e-4)
+    assert frame_transforms(res, {"left": "cam", "right": "cam"}) == []

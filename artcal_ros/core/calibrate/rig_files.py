@@ -4,7 +4,8 @@ calibrator node with ``cameras``.
 - :func:`rig_solve_kwargs`: the keyword arguments of
   :func:`~artcal_ros.core.calibrate.rig.calibrate_rig` from the flat parameters;
 - :func:`write_rig_files`: ``DIR/<camera>.yaml`` per camera (camera_calibration_parsers
-  YAML, a pair with its stereo rectification R and P) and ``DIR/camchain.yaml`` (Kalibr's).
+  YAML, a pair with its stereo rectification R and P) and ``DIR/camchain.yaml`` (Kalibr's);
+- :func:`frame_transforms`: the extrinsics as tf transforms between the cameras' frames.
 """
 
 from __future__ import annotations
@@ -72,6 +73,30 @@ def write_rig_files(directory: str | Path, rig: RigResult, topics: Mapping[str, 
     written.append(out / "camchain.yaml")
     write_text_atomic(written[-1], text)
     return written, warnings
+
+
+def frame_transforms(rig: RigResult, frame_ids: Mapping[str, str]
+                     ) -> list[tuple[str, str, np.ndarray, tuple[float, float, float, float]]]:
+    """Each camera's frame in the reference camera's, as tf states a transform.
+
+    Args:
+        rig: the solved rig.
+        frame_ids: camera -> its frame id (the images' header frame_id).
+
+    Returns:
+        one ``(parent frame, child frame, translation (3,) metres, rotation (x, y, z, w))``
+        per camera after the reference: T_reference_camera, mapping a point in the child's
+        frame into the parent's (the inverse of ``rig.extrinsics[reference, camera]``); none
+        when two cameras share a frame id.
+    """
+    ref = rig.reference
+    if len({frame_ids[n] for n in rig.names}) < len(rig.names):
+        return []
+    out = []
+    for n in rig.names[1:]:
+        T = rig.transform(n, ref)   # T_ref_n
+        out.append((frame_ids[ref], frame_ids[n], T[:3, 3].copy(), quaternion_xyzw(T[:3, :3])))
+    return out
 
 
 def quaternion_xyzw(R: np.ndarray) -> tuple[float, float, float, float]:
