@@ -1,12 +1,15 @@
 """The detector's worker threads: compiled kernels (which release the GIL) run on them.
 
 ``ARTCAL_THREADS`` sets how many (default 2, at most the CPU count); 1 runs
-everything on the caller's thread. Results do not depend on it.
+everything on the caller's thread. Results do not depend on it. The pool is one per process,
+shared by every detector, created on first use under a lock; concurrent.futures joins its
+threads at interpreter exit.
 """
 
 from __future__ import annotations
 
 import os
+import threading
 from collections.abc import Callable
 from concurrent.futures import ThreadPoolExecutor
 from typing import Any
@@ -16,6 +19,7 @@ import numpy as np
 __all__ = ["run_all", "split_even", "threads"]
 
 _POOLS: dict[int, ThreadPoolExecutor] = {}
+_POOLS_LOCK = threading.Lock()
 MIN_RUN = 20_000  # work units (samples) below which a thread costs more than it saves
 
 
@@ -46,6 +50,8 @@ def run_all(fn: Callable[[np.ndarray], Any], runs: list[np.ndarray]) -> None:
         fn(runs[0])
         return
     n = threads()
-    if n not in _POOLS:
-        _POOLS[n] = ThreadPoolExecutor(n, thread_name_prefix="artcal-detect")
-    list(_POOLS[n].map(fn, runs))  # list(): re-raises a worker's exception here
+    with _POOLS_LOCK:  # two detecting threads (live tiers) may arrive here at once
+        pool = _POOLS.get(n)
+        if pool is None:
+            pool = _POOLS[n] = ThreadPoolExecutor(n, thread_name_prefix="detect kernels")
+    list(pool.map(fn, runs))  # list(): re-raises a worker's exception here
