@@ -36,7 +36,7 @@ from artcal_ros.synth import Camera, Photometry, random_poses
 from artcal_ros.synth.photometry import sense_and_encode
 from artcal_ros.synth.poses import marker_truth
 from artcal_ros.synth.view import render_linear
-from bench.solve_time import _dashed
+from bench.drawing import dashed_line
 
 STEPS = 16
 EXPOSURE_MIN, EXPOSURE_MAX = 0.055, 13.2
@@ -194,7 +194,7 @@ def plot(steps: list[Step], title: str) -> np.ndarray:
         pts = [(px(s.exposure), py(s.rms(m))) for s in steps if np.isfinite(s.rms(m))]
         for a, b in itertools.pairwise(pts):
             if m.startswith("opencv"):
-                _dashed(canvas, a, b, colour)
+                dashed_line(canvas, a, b, colour)
             else:
                 cv2.line(canvas, a, b, colour, 2, cv2.LINE_AA)
         for q in pts:
@@ -202,7 +202,7 @@ def plot(steps: list[Step], title: str) -> np.ndarray:
                        cv2.LINE_AA)
         lx = left + plot_w + 15
         if m.startswith("opencv"):
-            _dashed(canvas, (lx, legend_y), (lx + 40, legend_y), colour)
+            dashed_line(canvas, (lx, legend_y), (lx + 40, legend_y), colour)
         else:
             cv2.line(canvas, (lx, legend_y), (lx + 40, legend_y), colour, 2, cv2.LINE_AA)
         label = {"corners": "corners, compensated"}.get(m, m)
@@ -222,7 +222,7 @@ def plot(steps: list[Step], title: str) -> np.ndarray:
                for s in steps]
         for a, b in itertools.pairwise(pts):
             if dashed:
-                _dashed(canvas, a, b, colour)
+                dashed_line(canvas, a, b, colour)
             else:
                 cv2.line(canvas, a, b, colour, 2, cv2.LINE_AA)
         for q in pts:
@@ -230,7 +230,7 @@ def plot(steps: list[Step], title: str) -> np.ndarray:
     lx, ly = left + plot_w + 15, dec_top + 20
     cv2.line(canvas, (lx, ly), (lx + 40, ly), (190, 100, 20), 2, cv2.LINE_AA)
     cv2.putText(canvas, "artcal_ros", (lx + 48, ly + 5), _FONT, 0.45, _BLACK, 1, cv2.LINE_AA)
-    _dashed(canvas, (lx, ly + 26), (lx + 40, ly + 26), (120, 120, 120))
+    dashed_line(canvas, (lx, ly + 26), (lx + 40, ly + 26), (120, 120, 120))
     cv2.putText(canvas, "opencv", (lx + 48, ly + 31), _FONT, 0.45, _BLACK, 1, cv2.LINE_AA)
     cv2.putText(canvas, title, (left, 28), _FONT, 0.6, _BLACK, 1, cv2.LINE_AA)
     cv2.putText(canvas, "RMS error against truth, px (log); dashed: OpenCV ArucoDetector + "

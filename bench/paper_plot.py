@@ -9,6 +9,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from bench.drawing import dashed_line
+
 _FONT = cv2.FONT_HERSHEY_SIMPLEX
 _BLACK = (0, 0, 0)
 # BGR, one per camera / method
@@ -25,20 +27,6 @@ class Series:
     y: tuple[float, ...]
     colour: tuple[int, int, int]
     dashed: bool = False
-
-
-def _dashed(img: np.ndarray, a: tuple[int, int], b: tuple[int, int],
-            colour: tuple[int, int, int]) -> None:
-    length = math.hypot(b[0] - a[0], b[1] - a[1])
-    if length == 0:
-        return
-    ux, uy = (b[0] - a[0]) / length, (b[1] - a[1]) / length
-    s = 0.0
-    while s < length:
-        e = min(s + 7.0, length)
-        cv2.line(img, (round(a[0] + ux * s), round(a[1] + uy * s)),
-                 (round(a[0] + ux * e), round(a[1] + uy * e)), colour, 2, cv2.LINE_AA)
-        s = e + 5.0
 
 
 def _ticks(lo: float, hi: float) -> list[float]:
@@ -91,14 +79,15 @@ def line_chart(series: list[Series], *, title: str, x_label: str, y_label: str,
         pts = [xy(x, y) for x, y in zip(s.x, s.y, strict=True) if math.isfinite(y) and y > 0]
         for a, b in itertools.pairwise(pts):
             if s.dashed:
-                _dashed(img, a, b, s.colour)
+                dashed_line(img, a, b, s.colour, dash=7.0, gap=5.0)
             else:
                 cv2.line(img, a, b, s.colour, 2, cv2.LINE_AA)
         for q in pts:
             cv2.circle(img, q, 3, s.colour, -1, cv2.LINE_AA)
         lx = left + pw + 15
         if s.dashed:
-            _dashed(img, (lx, legend_y), (lx + 36, legend_y), s.colour)
+            dashed_line(img, (lx, legend_y), (lx + 36, legend_y), s.colour, dash=7.0,
+                        gap=5.0)
         else:
             cv2.line(img, (lx, legend_y), (lx + 36, legend_y), s.colour, 2, cv2.LINE_AA)
         cv2.putText(img, s.label, (lx + 44, legend_y + 5), _FONT, 0.42, _BLACK, 1, cv2.LINE_AA)

@@ -60,6 +60,7 @@ from artcal_ros.core.live.coverage import Readiness
 from artcal_ros.core.params import load_params
 from artcal_ros.synth import PRESETS as ALL_PRESETS
 from artcal_ros.synth import Camera, marker_truth, random_poses
+from bench.drawing import dashed_line
 
 ROOT = Path(__file__).resolve().parents[1]
 PARAMS_FILE = ROOT / "config" / "calibrator.yaml"
@@ -382,21 +383,6 @@ _COLOURS = {("webcam", "corners"): (180, 90, 20), ("webcam", "centers"): (230, 1
             ("fisheye", "corners"): (60, 60, 60), ("fisheye", "centers"): (150, 150, 150)}
 
 
-def _dashed(canvas: np.ndarray, a: tuple[int, int], b: tuple[int, int],
-            colour: tuple[int, int, int], dash: int = 9, gap: int = 6) -> None:
-    """A dashed line from a to b (OpenCV draws only solid ones)."""
-    length = math.hypot(b[0] - a[0], b[1] - a[1])
-    if length == 0:
-        return
-    ux, uy = (b[0] - a[0]) / length, (b[1] - a[1]) / length
-    s = 0.0
-    while s < length:
-        e = min(s + dash, length)
-        cv2.line(canvas, (round(a[0] + ux * s), round(a[1] + uy * s)),
-                 (round(a[0] + ux * e), round(a[1] + uy * e)), colour, 2, cv2.LINE_AA)
-        s = e + gap
-
-
 def plot_solve_time(rows: Sequence[dict[str, Any]], default: int,
                     title: str = "") -> np.ndarray:
     """BGR plot of solve time (log scale) against the number of views.
@@ -460,7 +446,7 @@ def plot_solve_time(rows: Sequence[dict[str, Any]], default: int,
             if setting == "all":
                 cv2.line(canvas, a, b, colour, 2, cv2.LINE_AA)
             else:
-                _dashed(canvas, a, b, colour)
+                dashed_line(canvas, a, b, colour)
         for q in pts:
             if setting == "all":
                 cv2.circle(canvas, q, 4, colour, -1, cv2.LINE_AA)
@@ -471,7 +457,7 @@ def plot_solve_time(rows: Sequence[dict[str, Any]], default: int,
             cv2.line(canvas, (lx, legend_y), (lx + 40, legend_y), colour, 2, cv2.LINE_AA)
             cv2.circle(canvas, (lx + 20, legend_y), 4, colour, -1, cv2.LINE_AA)
         else:
-            _dashed(canvas, (lx, legend_y), (lx + 40, legend_y), colour)
+            dashed_line(canvas, (lx, legend_y), (lx + 40, legend_y), colour)
             cv2.rectangle(canvas, (lx + 16, legend_y - 4), (lx + 24, legend_y + 4), colour, 2)
         label = f"{preset} {points}, " + ("all views" if setting == "all"
                                            else f"max_views {default}")
