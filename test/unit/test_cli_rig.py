@@ -1,7 +1,7 @@
 """``artcal calibrate --camera ...``: a stereo rig from image folders and from a bag, against the
 renderer's truth; the output files in their formats (Kalibr's camchain.yaml, camera_calibration
 YAML with the rectification, summary.json); usage errors exit 2, a camera that sees nothing
-exits 1 naming it."""
+exits 1 naming it, images of different instants exit 1 saying so."""
 
 from __future__ import annotations
 
@@ -159,6 +159,24 @@ def test_a_count_mismatch_names_both_counts(stereo: tuple[Path, RigTruth], tmp_p
     assert code == 2
     assert len(err.strip().splitlines()) == 1 and "Traceback" not in err
     assert f"left {FRAMES}" in err and f"right {FRAMES - 1}" in err
+
+
+def test_images_of_different_instants_fail_saying_why(stereo: tuple[Path, RigTruth],
+                                                      tmp_path: Path,
+                                                      capsys: pytest.CaptureFixture[str]) -> None:
+    data, _ = stereo
+    for cam, keep in (("left", slice(None, -1)), ("right", slice(1, None))):
+        (tmp_path / cam).mkdir()
+        for f in sorted((data / cam).glob("*.png"))[keep]:
+            shutil.copy(f, tmp_path / cam / f.name)
+    code = main(["calibrate", "--camera", f"left={tmp_path}/left/*.png",
+                 "--camera", f"right={tmp_path}/right/*.png", "--params", PARAMS,
+                 "--output-dir", str(tmp_path / "o"), "--quiet"])
+    err = capsys.readouterr().err
+    assert code == 1 and "Traceback" not in err
+    assert "left-right: reprojection RMS" in err
+    assert "not show the board at the same instant" in err
+    assert not (tmp_path / "o" / "camchain.yaml").exists()
 
 
 def test_a_bag_with_two_topics_pairs_by_stamp(stereo: tuple[Path, RigTruth], tmp_path: Path,

@@ -1,5 +1,6 @@
 """calibrate_rig against exact truth: extrinsics, intrinsics, uncertainty, fisheye pairs, given
-intrinsics, a trio chained through its middle camera, partial views, a camera cut off."""
+intrinsics, a trio chained through its middle camera, partial views, a camera cut off, images
+of different instants refused (or one such frame left out)."""
 
 from __future__ import annotations
 
@@ -52,6 +53,7 @@ def test_stereo_pair_to_the_truth(points: str) -> None:
     R2, t2 = res.extrinsics["right", "left"]
     assert np.allclose(R2, R.T, atol=1e-12) and np.allclose(t2, -R.T @ t, atol=1e-12)
     assert res.names == ("left", "right") and res.reference == "left"
+    assert res.warnings == ()   # the cameras agree: no verdict warning
     assert res.shared_frames["left", "right"] == res.pairs["left", "right"].shared_frames >= 15
     summary = res.to_summary_dict()
     assert summary["extrinsics"][0]["from"] == "left"
@@ -159,3 +161,28 @@ def test_outlier_corners_are_dropped() -> None:
     text = res.summary()
     assert text.splitlines()[1].startswith("left -> right: baseline 0.1200")
     assert "rectified epipolar RMS" in text and text.count("plumb_bob") == 2
+
+
+def test_images_of_different_instants_are_refused() -> None:
+    rig, dets = make_rig("stereo", "webcam", 10, seed=3)
+    # right's images moved on by one: every rig frame pairs two instants
+    shifted = {"left": dets["left"][:-1], "right": dets["right"][1:]}
+    with pytest.raises(CalibrationError) as e:
+        _solve(rig, shifted)
+    msg = str(e.value)
+    rms = float(msg.split("left-right: reprojection RMS ")[1].split()[0])
+    assert rms > 5.0, msg   # board poses 1-3 px apart between the frames
+    assert "where each camera alone fits the same points to 0.04" in msg, msg
+    assert "not show the board at the same instant" in msg and "sync_tolerance" in msg
+
+
+def test_one_frame_of_different_instants_is_left_out() -> None:
+    rig, dets = make_rig("stereo", "webcam", 20, seed=3)
+    mixed = {n: list(v) for n, v in dets.items()}
+    mixed["right"][5] = dets["right"][6]
+    res = _solve(rig, mixed)
+    _check_pair(rig, res, "left", "right", baseline_pct=0.05, rotation_deg=0.01)
+    apart = [d for d in res.frames_dropped if "not simultaneous" in d.reason]
+    assert [(d.view_index, d.reason.split(":")[0]) for d in apart] == [(5, "right")]
+    assert 5 in res.cameras["left"].views_used and 5 not in res.cameras["right"].views_used
+    assert res.warnings == ()

@@ -9,16 +9,20 @@
 The pipeline: each camera calibrated alone (:func:`~.pipeline.calibrate`, or its given
 intrinsics) -> each camera's board pose in every frame where it measures the board ->
 connectivity through shared frames (a camera cut off is an error that says what to show)
--> extrinsics started from the robust median of the relative poses -> joint bundle
-adjustment of every intrinsic, extrinsic and frame pose (:mod:`.rig_solve`) -> outlier
-points and observations dropped, weights re-scaled to the residuals, solved again ->
-covariance of the extrinsics, rectification of consecutive pairs (:mod:`.rectify`).
+-> extrinsics started from the robust median of the relative poses (a camera's frame whose
+board pose disagrees with the rest of its pair's is left out as not simultaneous) -> joint
+bundle adjustment of every intrinsic, extrinsic and frame pose (:mod:`.rig_solve`) ->
+outlier points and observations dropped, weights re-scaled to the residuals, solved again ->
+covariance of the extrinsics, rectification of consecutive pairs (:mod:`.rectify`) -> the
+verdict (:mod:`.rig_verdict`): a pair whose joint fit is far worse than its cameras' own is
+refused.
 """
 
 from __future__ import annotations
 
 import time
 from collections.abc import Callable, Mapping, Sequence
+from dataclasses import replace
 
 import numpy as np
 
@@ -39,7 +43,9 @@ from artcal_ros.core.calibrate.rig_solve import (
     RigCamera,
     RigObservation,
     RigSolution,
+    pair_transform,
     rig_bundle_adjust,
+    rig_residuals,
 )
 from artcal_ros.core.calibrate.rig_start import (
     connectivity_problem,
@@ -48,6 +54,7 @@ from artcal_ros.core.calibrate.rig_start import (
     shared_frame_counts,
     spanning_tree,
 )
+from artcal_ros.core.calibrate.rig_verdict import check_pairs, refusal, warnings_of
 from artcal_ros.core.calibrate.views import POINTS_MODES, lens_corrected_centers, view_points
 from artcal_ros.core.camera import CameraModel
 from artcal_ros.core.detections import Detections
@@ -58,6 +65,7 @@ OUTLIER_SIGMAS = 5.0  # as the single-camera pipeline: a point this many robust 
 OUTLIER_FLOOR_PX = 0.5  # ... and at least this far is an outlier
 OBSERVATION_OUTLIER_FACTOR = 3.0  # an observation whose RMS is this many times the median's
 REWEIGHT_ROUNDS = 2
+APART_FACTOR = 5.0  # a frame this many times the pair's median disagreement at the start
 
 
 def _observation_problem(view: ViewPoints, board: Board) -> str | None:
@@ -248,7 +256,8 @@ def calibrate_rig(detections: Mapping[str, Sequence[Detections | None]], board: 
     Raises:
         CalibrationError: a camera cannot be calibrated, or is not connected to the
             others through shared frames (the message names it, the shared frames of
-            each pair and what to show).
+            each pair and what to show), or a pair's cameras do not fit one board pose
+            per frame (images of different instants: the message gives the figures).
         ParameterError: a bad argument (named).
     """
     start = time.monotonic()
@@ -309,6 +318,18 @@ def calibrate_rig(detections: Mapping[str, Sequence[Detections | None]], board: 
                 for n in names]
     weighted = weighted and any(o.view.sigma_px is not None
                                 and np.isfinite(o.view.sigma_px).any() for o in obs)
+    apart = _not_simultaneous(names, tree, rig_cams, ext0, pose0, obs, frames, cams, poses)
+    if apart:  # left out, and the start made again without them
+        for k, f, why in apart:
+            dropped[names[k]].append(DroppedView(f, views[names[k]][f].source, why))
+            del views[names[k]][f], poses[names[k]][f]
+        tree = spanning_tree(names, _check_connected(names, views))
+        ext0 = initial_extrinsics(names, tree, poses)
+        pose0 = initial_board_poses(names, frames, ext0, poses,
+                                    {n: {f: len(v) for f, v in views[n].items()}
+                                     for n in names})
+        obs = [RigObservation(k, i, views[n][f]) for i, f in enumerate(frames)
+               for k, n in enumerate(names) if f in views[n]]
 
     # Step 4. Joint bundle adjustment, outliers out, weights re-scaled.
     say(f"joint bundle adjustment of {len(names)} cameras over {len(frames)} frames")
@@ -317,6 +338,7 @@ def calibrate_rig(detections: Mapping[str, Sequence[Detections | None]], board: 
         obs = [RigObservation(o.camera, o.frame, lens_corrected_centers(
             o.view, _camera_of(sol, o.camera, sizes[names[o.camera]]))) for o in obs]
         sol = _again(obs, sol, weighted)
+    _refuse_hopeless(names, tree, sol, obs, frames, cams, poses)
     outliers: dict[str, list[np.ndarray]] = {n: [] for n in names}
     points_dropped = 0
     for _round in range(8):
@@ -342,8 +364,65 @@ def calibrate_rig(detections: Mapping[str, Sequence[Detections | None]], board: 
 
     # Step 5. Results: cameras, pairs with their uncertainty, rectification.
     say("extrinsics' uncertainty and rectification")
-    return rig_result(names, sizes, points, board, fixed, single, sol, obs, frames, dropped,
-                   outliers, points_dropped, tree, time.monotonic() - start)
+    rig = rig_result(names, sizes, points, board, fixed, single, sol, obs, frames, dropped,
+                     outliers, points_dropped, tree, time.monotonic() - start)
+
+    # Step 6. The verdict: does one board pose per frame fit the cameras as well as their own?
+    checks = check_pairs(
+        names, tree, sol.residuals, obs, frames, cams, poses,
+        {p: rig.pairs[p].baseline_m for p in tree},
+        {n: int(sum(len(x) for x in outliers[n])) for n in names},
+        {n: _own_dropped_share(single[n]) for n in names})
+    reason = refusal(checks)
+    if reason is not None:
+        raise CalibrationError(reason)
+    extra = warnings_of(checks)
+    return replace(rig, warnings=(*rig.warnings, *extra)) if extra else rig
+
+
+def _not_simultaneous(names: tuple[str, ...], tree: list[tuple[str, str]],
+                      rig_cams: list[RigCamera], ext0: np.ndarray, pose0: np.ndarray,
+                      obs: list[RigObservation], frames: list[int],
+                      cams: dict[str, CameraModel],
+                      poses: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]]
+                      ) -> list[tuple[int, int, str]]:
+    """The observations to leave out as not simultaneous with their pair's other camera:
+    (camera position, rig frame index, why). At the start (extrinsics the median over the
+    frames, each frame's pose from one camera) a frame whose second camera sees the board
+    elsewhere than the first stands out; fitted in, it would pull the whole solve."""
+    res = rig_residuals(obs, tuple(rig_cams), ext0, pose0)
+    checks = check_pairs(names, tree, res, obs, frames, cams, poses,
+                         {p: 0.0 for p in tree}, {}, {})
+    out = []
+    for c in checks:
+        limit = max(c.limit_px, APART_FACTOR * c.median_frame_excess_px)
+        out += [(names.index(c.second), f, f"not simultaneous with {c.first}: one board pose "
+                 f"for both is {e:.2f} px off its own")
+                for f, e in c.frame_excess_px.items() if not e <= limit]
+    return out
+
+
+def _refuse_hopeless(names: tuple[str, ...], tree: list[tuple[str, str]], sol: RigSolution,
+                     obs: list[RigObservation], frames: list[int],
+                     cams: dict[str, CameraModel],
+                     poses: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]]) -> None:
+    """Refuse at once when most frames of a connecting pair disagree (images of different
+    instants): dropping outliers cannot mend that, and would take long on such residuals."""
+    baselines = {(a, b): float(np.linalg.norm(pair_transform(
+        sol.extrinsics, names.index(a), names.index(b))[1])) for a, b in tree}
+    checks = check_pairs(names, tree, sol.residuals, obs, frames, cams, poses, baselines,
+                         {}, {})
+    reason = refusal([c for c in checks if c.hopeless()])
+    if reason is not None:
+        raise CalibrationError(reason)
+
+
+def _own_dropped_share(res: CalibrationResult | None) -> float:
+    """The share of its points a camera's own calibration dropped as outliers."""
+    if res is None:
+        return 0.0
+    kept = len(res.residuals_px)
+    return res.points_dropped / max(kept + res.points_dropped, 1)
 
 
 def _camera_of(sol: RigSolution, k: int, size: tuple[int, int]) -> CameraModel:
