@@ -38,6 +38,7 @@ from typing import Any
 
 import numpy as np
 
+from artcal_ros.cli.bag_images import frames_affordable, message_image
 from artcal_ros.cli.calibrate_report import (
     FrameSample,
     arrange_summary,
@@ -133,8 +134,6 @@ def _bag_frames(bag: str, topic: str | None, max_frames: int, budget_s: float,
     ``warn`` is told where it broke.
     """
     from artcal_ros.bag import BagReader
-    from artcal_ros.core.images import image_to_numpy
-    from artcal_ros.core.images.compressed import compressed_to_numpy
 
     start = time.monotonic()
     with BagReader(bag) as reader:
@@ -150,9 +149,7 @@ def _bag_frames(bag: str, topic: str | None, max_frames: int, budget_s: float,
             if k < next_index:
                 continue
             try:
-                msg = m.decode()
-                image = (compressed_to_numpy(msg) if m.msgtype.endswith("CompressedImage")
-                         else image_to_numpy(msg))
+                image = message_image(m)
             except (BagError, ImageFormatError) as e:
                 skipped.add(e)
                 next_index = k + 1  # the next message stands in for this one
@@ -161,11 +158,7 @@ def _bag_frames(bag: str, topic: str | None, max_frames: int, budget_s: float,
             taken += 1
             bar.update()
             # Frames still affordable, spread over the messages still to come.
-            left = cap - taken
-            if budget_s > 0:
-                elapsed = time.monotonic() - start
-                per_frame = elapsed / taken
-                left = min(left, int(max(budget_s - elapsed, 0.0) / per_frame))
+            left = frames_affordable(cap - taken, taken, time.monotonic() - start, budget_s)
             if left <= 0:
                 break
             next_index = k + max(1.0, (total - k - 1) / left)

@@ -17,6 +17,7 @@ from typing import Any
 
 import numpy as np
 
+from artcal_ros.cli.bag_images import frames_affordable, message_image
 from artcal_ros.cli.progress import Progress
 from artcal_ros.cli.skipped import (
     SkippedFrames,
@@ -151,8 +152,6 @@ def bag_frames(bag: str, topics: Mapping[str, str], board: Board, params: Mappin
     """
     from artcal_ros.bag import BagReader
     from artcal_ros.bag.header import header_stamp_ns
-    from artcal_ros.core.images import image_to_numpy
-    from artcal_ros.core.images.compressed import compressed_to_numpy
     from artcal_ros.core.sync import pair_by_stamp
 
     names = tuple(topics)
@@ -196,17 +195,13 @@ def bag_frames(bag: str, topics: Mapping[str, str], board: Board, params: Mappin
                 slots[f] = len(slots)
                 for each in names:
                     dets[each].append(None)
-                left = cap - len(slots)
-                if budget_s > 0 and len(slots) > 1:
-                    elapsed = time.monotonic() - start
-                    per = elapsed / (len(slots) - 1)
-                    left = min(left, int(max(budget_s - elapsed, 0.0) / max(per, 1e-9)))
+                # paced by the frames begun before this one
+                left = frames_affordable(cap - len(slots), len(slots) - 1,
+                                         time.monotonic() - start, budget_s)
                 next_index = (f + max(1.0, (total - f - 1) / left) if left > 0
                               else float(total))
             try:
-                msg = m.decode()
-                image = (compressed_to_numpy(msg) if m.msgtype.endswith("CompressedImage")
-                         else image_to_numpy(msg))
+                image = message_image(m)
             except (BagError, ImageFormatError) as e:
                 skipped.add(e)
                 continue
