@@ -182,7 +182,11 @@ def test_one_frame_of_different_instants_is_left_out() -> None:
     mixed["right"][5] = dets["right"][6]
     res = _solve(rig, mixed)
     _check_pair(rig, res, "left", "right", baseline_pct=0.05, rotation_deg=0.01)
+    # frame 5 pairs two instants: one of its cameras is left out (the one off the pose of
+    # the camera with more points), nothing else
     apart = [d for d in res.frames_dropped if "not simultaneous" in d.reason]
-    assert [(d.view_index, d.reason.split(":")[0]) for d in apart] == [(5, "right")]
-    assert 5 in res.cameras["left"].views_used and 5 not in res.cameras["right"].views_used
+    assert [d.view_index for d in apart] == [5], res.frames_dropped
+    out = apart[0].reason.split(":")[0]
+    assert 5 not in res.cameras[out].views_used
+    assert sum(5 in res.cameras[n].views_used for n in rig.names) == 1
     assert res.warnings == ()

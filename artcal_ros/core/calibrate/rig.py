@@ -24,6 +24,7 @@ import time
 from collections.abc import Callable, Mapping, Sequence
 from dataclasses import replace
 
+import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
@@ -34,6 +35,7 @@ from artcal_ros.core.calibrate.model import (
     ViewPoints,
     estimate_pose,
     free_parameters,
+    refine_pose,
 )
 from artcal_ros.core.calibrate.pipeline import calibrate
 from artcal_ros.core.calibrate.result import CalibrationResult, DroppedView
@@ -54,7 +56,14 @@ from artcal_ros.core.calibrate.rig_start import (
     shared_frame_counts,
     spanning_tree,
 )
-from artcal_ros.core.calibrate.rig_verdict import check_pairs, refusal, warnings_of
+from artcal_ros.core.calibrate.rig_verdict import (
+    EXCESS_REFUSE_FACTOR,
+    EXCESS_REFUSE_PX,
+    check_pairs,
+    observation_excess,
+    refusal,
+    warnings_of,
+)
 from artcal_ros.core.calibrate.views import POINTS_MODES, lens_corrected_centers, view_points
 from artcal_ros.core.camera import CameraModel
 from artcal_ros.core.detections import Detections
@@ -148,11 +157,24 @@ def _camera_poses(views: dict[int, ViewPoints], cam: CameraModel, points: str,
         if points == "centers":
             v = lens_corrected_centers(v, cam)
         try:
-            poses[f] = estimate_pose(v, cam.K, cam.dist, cam.model)
+            poses[f] = _in_front(v, cam, estimate_pose(v, cam.K, cam.dist, cam.model))
             kept[f] = v
         except CalibrationError:
             dropped.append(DroppedView(f, v.source, "no board pose found"))
     return kept, poses
+
+
+def _in_front(view: ViewPoints, cam: CameraModel,
+              pose: tuple[np.ndarray, np.ndarray]) -> tuple[np.ndarray, np.ndarray]:
+    """The pose with the board in front of the camera. A fisheye's projection divides by
+    the depth, so a board mirrored through the optical centre (R diag(-1, -1, 1), -t) gives
+    the same image; alone that is harmless, but composed with the extrinsics it is not."""
+    R = cv2.Rodrigues(np.asarray(pose[0], np.float64))[0]
+    if float(np.mean(view.object_points @ R[2] + pose[1][2])) > 0:
+        return pose
+    r = cv2.Rodrigues(R @ np.diag([-1.0, -1.0, 1.0]))[0].ravel()
+    r, t, err = refine_pose(view, cam.K, cam.dist, cam.model, r, -np.asarray(pose[1]))
+    return (r, t) if np.isfinite(err) else pose
 
 
 def _check_connected(names: Sequence[str],
@@ -295,6 +317,11 @@ def calibrate_rig(detections: Mapping[str, Sequence[Detections | None]], board: 
             except CalibrationError as e:
                 raise CalibrationError(f"camera {n}: {e}") from None
             cams[n], single[n] = res.camera, res
+            for d in res.views_dropped:  # its own outliers would pull the joint solve too
+                if d.view_index in views[n] and not d.reason.startswith("not selected"):
+                    del views[n][d.view_index]
+                    dropped[n].append(DroppedView(d.view_index, d.source,
+                                                  f"left out by its own calibration: {d.reason}"))
         views[n], poses[n] = _camera_poses(views[n], cams[n], points, dropped[n])
 
     # Step 3. The frames to solve and the start.
@@ -318,7 +345,7 @@ def calibrate_rig(detections: Mapping[str, Sequence[Detections | None]], board: 
                 for n in names]
     weighted = weighted and any(o.view.sigma_px is not None
                                 and np.isfinite(o.view.sigma_px).any() for o in obs)
-    apart = _not_simultaneous(names, tree, rig_cams, ext0, pose0, obs, frames, cams, poses)
+    apart = _not_simultaneous(names, rig_cams, ext0, pose0, obs, frames, cams, poses)
     if apart:  # left out, and the start made again without them
         for k, f, why in apart:
             dropped[names[k]].append(DroppedView(f, views[names[k]][f].source, why))
@@ -380,25 +407,30 @@ def calibrate_rig(detections: Mapping[str, Sequence[Detections | None]], board: 
     return replace(rig, warnings=(*rig.warnings, *extra)) if extra else rig
 
 
-def _not_simultaneous(names: tuple[str, ...], tree: list[tuple[str, str]],
-                      rig_cams: list[RigCamera], ext0: np.ndarray, pose0: np.ndarray,
-                      obs: list[RigObservation], frames: list[int],
+def _not_simultaneous(names: tuple[str, ...], rig_cams: list[RigCamera], ext0: np.ndarray,
+                      pose0: np.ndarray, obs: list[RigObservation], frames: list[int],
                       cams: dict[str, CameraModel],
                       poses: dict[str, dict[int, tuple[np.ndarray, np.ndarray]]]
                       ) -> list[tuple[int, int, str]]:
-    """The observations to leave out as not simultaneous with their pair's other camera:
+    """The observations to leave out as not simultaneous with the rest of their frame:
     (camera position, rig frame index, why). At the start (extrinsics the median over the
-    frames, each frame's pose from one camera) a frame whose second camera sees the board
-    elsewhere than the first stands out; fitted in, it would pull the whole solve."""
+    frames, each frame's pose from the camera with the most points) a camera whose image
+    shows the board elsewhere stands out; fitted in, it would pull the whole solve. A view
+    its own camera does not fit either is left to the outlier rejection."""
     res = rig_residuals(obs, tuple(rig_cams), ext0, pose0)
-    checks = check_pairs(names, tree, res, obs, frames, cams, poses,
-                         {p: 0.0 for p in tree}, {}, {})
+    excess = observation_excess(res, obs, frames, [cams[n] for n in names],
+                                [poses[n] for n in names])
     out = []
-    for c in checks:
-        limit = max(c.limit_px, APART_FACTOR * c.median_frame_excess_px)
-        out += [(names.index(c.second), f, f"not simultaneous with {c.first}: one board pose "
-                 f"for both is {e:.2f} px off its own")
-                for f, e in c.frame_excess_px.items() if not e <= limit]
+    for k in range(len(names)):
+        mine = [(o, e, own) for o, (e, own) in zip(obs, excess, strict=True) if o.camera == k]
+        if not mine:
+            continue
+        own_rms = float(np.median([own for _, _, own in mine]))
+        limit = max(EXCESS_REFUSE_FACTOR * own_rms, EXCESS_REFUSE_PX,
+                    APART_FACTOR * float(np.median([e for _, e, _ in mine])))
+        out += [(k, frames[o.frame], f"not simultaneous with the rest of the frame: its own "
+                 f"board pose is {e:.2f} px from the rig's")
+                for o, e, own in mine if e > limit and own <= limit]
     return out
 
 

@@ -31,7 +31,7 @@ from artcal_ros.core.calibrate.model import project
 from artcal_ros.core.calibrate.rig_solve import RigObservation
 from artcal_ros.core.camera import CameraModel
 
-__all__ = ["PairCheck", "check_pairs", "refusal", "warnings_of"]
+__all__ = ["PairCheck", "check_pairs", "observation_excess", "refusal", "warnings_of"]
 
 EXCESS_REFUSE_FACTOR = 3.0
 EXCESS_REFUSE_PX = 0.5
@@ -130,6 +130,33 @@ class PairCheck:
 def _centre_in_board(pose: tuple[np.ndarray, np.ndarray]) -> np.ndarray:
     R = cv2.Rodrigues(np.asarray(pose[0], np.float64))[0]
     return -R.T @ np.asarray(pose[1], np.float64)
+
+
+def observation_excess(residuals: Sequence[np.ndarray], obs: Sequence[RigObservation],
+                       frames: Sequence[int], own_cameras: Sequence[CameraModel],
+                       own_poses: Sequence[Mapping[int, tuple[np.ndarray, np.ndarray]]]
+                       ) -> list[tuple[float, float]]:
+    """Per observation, (excess, own RMS), pixels: how much worse the rig's board pose fits
+    it than the camera's own pose of that frame (sqrt of the difference of mean squares),
+    and the own pose's RMS.
+
+    Args:
+        residuals: per observation, (M, 2) pixels, under the rig's poses.
+        obs, frames: the observations and the rig frame index of each solve frame.
+        own_cameras, own_poses: per camera position, its own calibration and its own
+            T_cam_board by rig frame index.
+    """
+    out = []
+    for o, r in zip(obs, residuals, strict=True):
+        cam = own_cameras[o.camera]
+        pose = own_poses[o.camera][frames[o.frame]]
+        own = o.view.image_points - project(o.view.object_points, pose[0], pose[1], cam.K,
+                                            cam.dist, cam.model)
+        own_sq = float(np.mean(np.sum(own ** 2, axis=1)))
+        joint_sq = float(np.mean(np.sum(np.asarray(r) ** 2, axis=1)))
+        out.append((float(np.sqrt(max(joint_sq - own_sq, 0.0))) if np.isfinite(joint_sq)
+                    else float("inf"), float(np.sqrt(own_sq))))
+    return out
 
 
 def check_pairs(names: Sequence[str], tree: Sequence[tuple[str, str]],
