@@ -37,7 +37,6 @@ number of them, stop the node in order and it exits 0.
 
 from __future__ import annotations
 
-import gc
 import os
 import sys
 import threading
@@ -50,10 +49,8 @@ import rclpy
 from diagnostic_msgs.msg import DiagnosticArray
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
 from rclpy.context import Context
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from rclpy.signals import SignalHandlerOptions
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from sensor_msgs.srv import SetCameraInfo
@@ -72,6 +69,12 @@ from artcal_ros.core.live.overlay import render_heat_map, render_overlay
 from artcal_ros.core.live.stream import LiveDetection
 from artcal_ros.core.params import PARAMETERS, ParamValue
 from artcal_ros.ros import msgs
+from artcal_ros.ros.calibrator_common import (
+    LATCHED_QOS,
+    OVERLAY_QOS,
+    answer_calibrate,
+    spin_until_stopped,
+)
 from artcal_ros.ros.command_line import CommandHelp, from_specs, handle_arguments, init_ros
 from artcal_ros.ros.diagnostics import Counters, diagnostic_array
 from artcal_ros.ros.image_subscription import ImageSubscription, QosChoice
@@ -79,15 +82,10 @@ from artcal_ros.ros.latest import LatestWorker
 from artcal_ros.ros.parameters import check_update, declare_parameters
 from artcal_ros.ros.rig_calibrator import rig_main, rig_requested
 from artcal_ros.ros.saved_session import open_session
-from artcal_ros.ros.signals import ExecutorSpin, StopSignals, shut_down
+from artcal_ros.ros.signals import StopSignals
 from artcal_ros.ros.transport import use_large_shared_memory
 
 SWITCH_INTERVAL_S = 0.001
-LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-OVERLAY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                         reliability=ReliabilityPolicy.RELIABLE)
 
 
 class CalibratorNode(Node):
@@ -287,27 +285,11 @@ class CalibratorNode(Node):
     # --- services -----------------------------------------------------------------
     def _on_calibrate(self, request: Trigger.Request, response: Trigger.Response
                       ) -> Trigger.Response:
-        if not self._solving.acquire(blocking=False):
-            response.success = False
-            response.message = "a calibration is already running; try again when it ends"
-            return response
-        try:
+        def calibrate() -> tuple[bool, str]:
             outcome = self._calibrate()
-        except Exception as e:  # a bug must not take the node down with it
-            self.get_logger().error(f"~/calibrate failed: {e!r}")
-            outcome = SolveOutcome(False, f"internal error: {e!r}")
-        finally:
-            self._solving.release()
-        response.success = outcome.success
-        response.message = outcome.message
-        if self._stopping.is_set() or not self.context.ok():
-            return response  # shutting down: rosout may be gone, nobody reads the log
-        # rclpy refuses two severities from one call site, hence two calls.
-        if outcome.success:
-            self.get_logger().info(f"~/calibrate: {outcome.message}")
-        else:
-            self.get_logger().warning(f"~/calibrate: {outcome.message}")
-        return response
+            return outcome.success, outcome.message
+
+        return answer_calibrate(self, self._solving, self._stopping, calibrate, response)
 
     def _calibrate(self) -> SolveOutcome:
         # The views already seen but still in precise detection belong to this solve.
@@ -447,33 +429,7 @@ def main(args: list[str] | None = None) -> int:
         rclpy.logging.get_logger("calibrator").fatal(f"refusing to start: {e}")
         rclpy.try_shutdown()
         return 2
-    # What start-up made (modules, the node, detector tables) lives as long as the process:
-    # out of the collector's sight, a full collection no longer walks it between two frames.
-    gc.collect()
-    gc.freeze()
-    executor = MultiThreadedExecutor(num_threads=4)
-    executor.add_node(node)
-    spin = ExecutorSpin(executor)
-    try:
-        spin.wait(stop)
-    finally:
-        node.stop()
-        shut_down(node, spin)
-    return _exit_status_when_threads_done(node, 0)
-
-
-def _exit_status_when_threads_done(node: CalibratorNode, status: int,
-                                   timeout: float = 2.0) -> int:
-    """Wait up to ``timeout`` s more for the node's threads, else leave at once.
-
-    A daemon thread still inside OpenCV when the interpreter finalizes can abort the
-    process ("exception not rethrown"); leaving with os._exit skips that finalization.
-    """
-    if node.stop(timeout):
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(status)
-    return status
+    return spin_until_stopped(node, node.stop, 4, stop)
 
 
 if __name__ == "__main__":

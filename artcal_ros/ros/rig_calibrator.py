@@ -22,9 +22,6 @@ precisely and runs ``calibrate_rig``, which ``~/calibrate`` waits for. With
 
 from __future__ import annotations
 
-import gc
-import os
-import sys
 import threading
 import time
 from concurrent.futures import CancelledError
@@ -34,10 +31,8 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
-from rclpy.executors import MultiThreadedExecutor
 from rclpy.node import Node
 from rclpy.parameter import Parameter
-from rclpy.qos import DurabilityPolicy, HistoryPolicy, QoSProfile, ReliabilityPolicy
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
 from sensor_msgs.srv import SetCameraInfo
 from std_srvs.srv import Trigger
@@ -55,6 +50,12 @@ from artcal_ros.core.live.rig_stream import RigStream
 from artcal_ros.core.live.rig_views import RigSnapshot, RigViews, RigViewsConfig
 from artcal_ros.core.params import ParamValue, output_path
 from artcal_ros.ros import msgs
+from artcal_ros.ros.calibrator_common import (
+    LATCHED_QOS,
+    OVERLAY_QOS,
+    answer_calibrate,
+    spin_until_stopped,
+)
 from artcal_ros.ros.diagnostics import Counters
 from artcal_ros.ros.image_subscription import ImageSubscription
 from artcal_ros.ros.parameters import check_update, declare_parameters
@@ -64,14 +65,9 @@ from artcal_ros.ros.rig_outputs import (
     tf_available,
     tf_static_message,
 )
-from artcal_ros.ros.signals import ExecutorSpin, StopSignals, shut_down
+from artcal_ros.ros.signals import StopSignals
 
 SOLVE_TIMEOUT_S = 600.0
-LATCHED_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                         reliability=ReliabilityPolicy.RELIABLE,
-                         durability=DurabilityPolicy.TRANSIENT_LOCAL)
-OVERLAY_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
-                         reliability=ReliabilityPolicy.RELIABLE)
 
 
 def rig_requested() -> bool:
@@ -254,23 +250,7 @@ class RigCalibratorNode(Node):
     # --- services ---------------------------------------------------------------------
     def _on_calibrate(self, request: Trigger.Request, response: Trigger.Response
                       ) -> Trigger.Response:
-        if not self._solving.acquire(blocking=False):
-            response.success = False
-            response.message = "a calibration is already running; try again when it ends"
-            return response
-        try:
-            response.success, response.message = self._calibrate()
-        except Exception as e:  # a bug must not take the node down with it
-            response.success, response.message = False, f"internal error: {e!r}"
-        finally:
-            self._solving.release()
-        if not self._stopping.is_set() and self.context.ok():
-            # rclpy refuses two severities from one call site, hence two calls.
-            if response.success:
-                self.get_logger().info(f"~/calibrate: {response.message}")
-            else:
-                self.get_logger().warning(f"~/calibrate: {response.message}")
-        return response
+        return answer_calibrate(self, self._solving, self._stopping, self._calibrate, response)
 
     def _calibrate(self) -> tuple[bool, str]:
         waited = self.stream.wait_idle(timeout=10.0, stopping=self._stopping)
@@ -379,21 +359,6 @@ def rig_main(transport: str, stop: StopSignals) -> int:
         ParameterError: a parameter is bad (the caller refuses to start).
     """
     node = RigCalibratorNode(transport=transport)
-    gc.collect()
-    gc.freeze()  # what start-up made lives as long as the process
     # a thread per camera's images, one for the services, one for the timers
-    executor = MultiThreadedExecutor(num_threads=len(node.names) + 2)
-    executor.add_node(node)
-    spin = ExecutorSpin(executor)
-    try:
-        spin.wait(stop)
-    finally:
-        node.stop()
-        shut_down(node, spin)
-    if node.stop(2.0):
-        # a daemon thread still inside OpenCV when the interpreter finalizes can abort it
-        sys.stdout.flush()
-        sys.stderr.flush()
-        os._exit(0)
-    return 0
+    return spin_until_stopped(node, node.stop, len(node.names) + 2, stop)
 
