@@ -19,8 +19,6 @@ As :mod:`~artcal_ros.core.live.stream` does for one camera:
 
 from __future__ import annotations
 
-import contextlib
-import threading
 import time
 from collections import deque
 from collections.abc import Callable, Mapping, Sequence
@@ -32,6 +30,7 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detections import Detections
+from artcal_ros.core.live.background import BackgroundTier
 from artcal_ros.core.live.rig_frames import RigFrame, StampPairer
 from artcal_ros.core.live.rig_views import RigViews
 from artcal_ros.core.live.tracking import MarkerTracker
@@ -67,7 +66,7 @@ class _Job:
     call: tuple[Callable[[], Any], Future[Any]] | None = None
 
 
-class RigStream:
+class RigStream(BackgroundTier[_Job]):
     """Tracked markers for every camera's frames, rig views measured in the background.
 
     The worker thread is named :attr:`thread_name`.
@@ -92,6 +91,7 @@ class RigStream:
                  on_error: Callable[[BaseException], None] | None = None,
                  refresh_s: float = 0.3, max_queued: int = 8) -> None:
         self.thread_name = "measure rig views"
+        super().__init__(self.thread_name)
         self.names = tuple(names)
         self.views = views
         self.trackers = {n: MarkerTracker(board) for n in self.names}
@@ -101,20 +101,14 @@ class RigStream:
         self._on_error = on_error
         self.refresh_s = refresh_s
         self.max_queued = max_queued
-        self._cond = threading.Condition()
         self._queue: deque[_Job] = deque()
         self._latest: dict[str, CameraFrame] | None = None      # newest rig frame
         self._newest: dict[str, CameraFrame] = {}               # newest frame per camera
         self._last_refresh = -np.inf
         self._last_paired = -np.inf
-        self._generation = 0
-        self._stopping = False
-        self._busy = False
         self._measured = {n: 0 for n in self.names}
         self._refused = 0
-        self._commit = threading.Lock()
-        self._thread = threading.Thread(target=self._run, name=self.thread_name, daemon=True)
-        self._thread.start()
+        self._start()
 
     # --- fast tier -------------------------------------------------------------------
     def offer(self, name: str, image: np.ndarray, stamp_ns: int) -> CameraFrame:
@@ -185,28 +179,19 @@ class RigStream:
         self._last_refresh = time.monotonic()
         return _Job(frames, None, self._generation, paired)
 
-    def _run(self) -> None:
-        while True:
-            with self._cond:
-                job = self._next_job()
-                while job is None and not self._stopping:
-                    self._cond.wait(timeout=0.05)
-                    job = self._next_job()
-                if self._stopping or job is None:
-                    for left in self._queue:
-                        if left.call is not None:
-                            left.call[1].cancel()
-                    return
-                self._busy = True
-            try:
-                if job.call is not None:
-                    self._call(*job.call)
-                else:
-                    self._measure(job)
-            finally:
-                with self._cond:
-                    self._busy = False
-                    self._cond.notify_all()
+    def _on_exit(self) -> None:
+        for left in self._queue:
+            if left.call is not None:
+                left.call[1].cancel()
+
+    def _pending(self) -> int:
+        return self.views.pending
+
+    def _work(self, job: _Job) -> None:
+        if job.call is not None:
+            self._call(*job.call)
+        else:
+            self._measure(job)
 
     @staticmethod
     def _call(call: Callable[[], Any], future: Future[Any]) -> None:
@@ -225,9 +210,7 @@ class RigStream:
         except Exception as e:
             if job.ticket is not None:
                 self.views.release(job.ticket)
-            if self._on_error is not None:
-                with contextlib.suppress(Exception):
-                    self._on_error(e)
+            self._report(self._on_error, e)
             return
         with self._commit:  # against reset(): a frame measured across one adds nothing
             if job.generation != self._generation:
@@ -260,17 +243,6 @@ class RigStream:
         """Rig frames waiting for (or in) precise detection."""
         return self.views.pending
 
-    def wait_idle(self, timeout: float, stopping: threading.Event | None = None) -> bool:
-        """Wait until no held rig view waits for its precise detection; whether that came."""
-        deadline = time.monotonic() + timeout
-        with self._cond:
-            while self.views.pending:
-                left = deadline - time.monotonic()
-                if left <= 0 or self._stopping or (stopping is not None and stopping.is_set()):
-                    return False
-                self._cond.wait(timeout=min(left, 0.1))
-            return True
-
     def reset(self) -> None:
         """Drop the queued rig frames, the frames waiting for a partner and the tracked
         markers (the views are reset apart). A detection running now adds nothing."""
@@ -291,8 +263,4 @@ class RigStream:
         """End the worker thread and join it (a detection or call in progress finishes
         first, up to ``timeout`` seconds; calls still queued are cancelled); whether it is
         still running."""
-        with self._cond:
-            self._stopping = True
-            self._cond.notify_all()
-        self._thread.join(timeout)
-        return self._thread.is_alive()
+        return not self._stop_thread(timeout)

@@ -22,8 +22,6 @@ later frame of the same view gets another chance.
 
 from __future__ import annotations
 
-import contextlib
-import threading
 import time
 from collections import deque
 from collections.abc import Callable
@@ -33,6 +31,7 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detections import Detections
+from artcal_ros.core.live.background import BackgroundTier
 from artcal_ros.core.live.coverage import ViewCollector
 from artcal_ros.core.live.tracking import MarkerTracker
 
@@ -93,7 +92,7 @@ class _Job:
     generation: int         # the reset count when it was queued
 
 
-class LiveDetection:
+class LiveDetection(BackgroundTier[_Job]):
     """Tracked markers for every frame and precise detections in the background.
 
     Args:
@@ -111,24 +110,20 @@ class LiveDetection:
                  collector: ViewCollector, config: LiveConfig | None = None, *,
                  on_measured: Callable[[np.ndarray, Detections, bool], None] | None = None,
                  on_error: Callable[[BaseException], None] | None = None) -> None:
+        super().__init__("measure views")
         self.config = config or LiveConfig()
         self.tracker = MarkerTracker(board)
         self.collector = collector
         self._detect = detect
         self._on_measured = on_measured
         self._on_error = on_error
-        self._cond = threading.Condition()
         self._queue: deque[_Job] = deque()
         self._queued_bytes = 0
         self._latest: _Job | None = None
         self._last_refresh = -np.inf
-        self._stopping = False
         self._measured = 0
         self._refused = 0
-        self._generation = 0  # counts resets: a detection started before one adds nothing
-        self._commit = threading.Lock()
-        self._thread = threading.Thread(target=self._run, name="measure views", daemon=True)
-        self._thread.start()
+        self._start()
 
     # --- fast tier -----------------------------------------------------------------
     def offer(self, image: np.ndarray) -> LiveFrame:
@@ -171,31 +166,19 @@ class LiveDetection:
             return job
         return None
 
-    def _run(self) -> None:
-        while True:
-            with self._cond:
-                job = self._next_job()
-                while job is None and not self._stopping:
-                    self._cond.wait(timeout=0.05)
-                    job = self._next_job()
-                if self._stopping or job is None:
-                    return
-            try:
-                self._measure(job)
-            finally:
-                with self._cond:
-                    self._measured += 1
-                    self._cond.notify_all()
+    def _job_done(self, job: _Job) -> None:
+        self._measured += 1
 
-    def _measure(self, job: _Job) -> None:
+    def _pending(self) -> int:
+        return self.collector.pending
+
+    def _work(self, job: _Job) -> None:
         try:
             dets = self._detect(job.image)
         except Exception as e:
             if job.ticket is not None:
                 self.collector.release(job.ticket)
-            if self._on_error is not None:
-                with contextlib.suppress(Exception):
-                    self._on_error(e)
+            self._report(self._on_error, e)
             return
         # The generation test and the collection's change are one step against reset():
         # a reset either comes before (this detection is dropped) or clears it after.
@@ -219,17 +202,6 @@ class LiveDetection:
         with self._cond:
             return LiveCounts(self._measured, pending, self._refused)
 
-    def wait_idle(self, timeout: float, stopping: threading.Event | None = None) -> bool:
-        """Wait until no held view waits for its precise detection; whether that came."""
-        deadline = time.monotonic() + timeout
-        with self._cond:
-            while self.collector.pending:
-                left = deadline - time.monotonic()
-                if left <= 0 or self._stopping or (stopping is not None and stopping.is_set()):
-                    return False
-                self._cond.wait(timeout=min(left, 0.1))
-            return True
-
     def reset(self) -> None:
         """Drop the queued frames and the tracked markers (the collection is reset apart).
 
@@ -246,18 +218,11 @@ class LiveDetection:
                 self.collector.release(job.ticket)
         self.tracker.reset()
 
-    @property
-    def alive(self) -> bool:
-        """Whether the background thread still runs."""
-        return self._thread.is_alive()
+    def _on_stop(self) -> None:
+        self._queue.clear()
+        self._queued_bytes = 0
 
     def stop(self, timeout: float = 1.0) -> bool:
         """End the background thread (a detection in progress finishes) and wait up to
         ``timeout`` s for it; whether it ended. Idempotent: call again to wait longer."""
-        with self._cond:
-            self._stopping = True
-            self._queue.clear()
-            self._queued_bytes = 0
-            self._cond.notify_all()
-        self._thread.join(timeout)
-        return not self._thread.is_alive()
+        return self._stop_thread(timeout)
