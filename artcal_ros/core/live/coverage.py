@@ -165,39 +165,20 @@ class ViewCollector:
     def _is_new(self, dets: Detections, geometry: ViewGeometry, cfg: CoverageConfig) -> bool:
         # Caller holds the lock. Against every kept view, not just the last: a board held
         # still, or a recording played in a loop, must not fill the collection with copies
-        # of one view. Turning the board about its centre barely moves the markers on
-        # average but is exactly the view a solve needs, hence the tilt test as well.
+        # of one view.
         w, h = dets.image_size
-        limit = cfg.novelty * math.hypot(w, h)
-        turn = 0.5 * cfg.tilt_deg
+        ids, pos = view_marks(self.board, dets)
         others = [*zip(reversed(self._views), reversed(self._geometry), strict=True),
                   *self._pending.values()]
         for old, old_geometry in others:
-            ids, pos = self._features(dets)
-            old_ids, old_pos = self._features(old)
-            shared, i_new, i_old = np.intersect1d(ids, old_ids, return_indices=True)
-            if len(shared) < 0.5 * len(ids):
-                continue
-            moved = np.linalg.norm(pos[i_new] - old_pos[i_old], axis=1)
-            turned = max(abs(geometry.tilt_x_deg - old_geometry.tilt_x_deg),
-                         abs(geometry.tilt_y_deg - old_geometry.tilt_y_deg))
-            if moved.mean() <= limit and turned <= turn:
+            old_ids, old_pos = view_marks(self.board, old)
+            if same_view(ids, pos, geometry, old_ids, old_pos, old_geometry,
+                         cfg.novelty * math.hypot(w, h), 0.5 * cfg.tilt_deg):
                 return False
         return True
 
-    def _features(self, dets: Detections) -> tuple[np.ndarray, np.ndarray]:
-        """(ids, image positions) of what identifies a view: its marker centres (marker
-        grids, and ChArUco boards, whose tracked views have markers only), else points."""
-        if self.board.n_markers:
-            return dets.ids, dets.centers_px
-        return dets.point_ids, dets.points_px
-
     def _too_few(self, dets: Detections, *, tracked: bool = False) -> bool:
-        # a kept view of a point board needs its points; a tracked one (reserve) has the
-        # markers only, which stand for the points until the precise detection comes
-        if self.board.has_points and not (tracked and self.board.n_markers):
-            return len(dets.point_ids) < max(self.config.min_markers, 8)
-        return len(dets) < self.config.min_markers
+        return not measures_board(self.board, dets, self.config.min_markers, tracked=tracked)
 
     def _geometry_of(self, dets: Detections, cfg: CoverageConfig
                      ) -> tuple[tuple[int, int], ViewGeometry]:
@@ -334,6 +315,43 @@ def _readiness(cfg: CoverageConfig, n: int, counts: np.ndarray, lr: int, ud: int
 def _count(n: int, noun: str) -> str:
     """``1 view``, ``2 views``."""
     return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
+
+
+def measures_board(board: Board, dets: Detections, min_markers: int, *,
+                   tracked: bool = False) -> bool:
+    """Whether one image's detections measure ``board``: ``min_markers`` markers, or for a
+    board with points that many points and at least 8.
+
+    A tracked view (``tracked``, approximate) has the markers only, which stand for the
+    points of a ChArUco board until the precise detection comes.
+    """
+    if board.has_points and not (tracked and board.n_markers):
+        return len(dets.point_ids) >= max(min_markers, 8)
+    return len(dets) >= min_markers
+
+
+def view_marks(board: Board, dets: Detections) -> tuple[np.ndarray, np.ndarray]:
+    """(ids (N,), image positions (N, 2) px) of what identifies a view: its marker centres
+    (marker grids, and ChArUco boards, whose tracked views have markers only), else points."""
+    if board.n_markers:
+        return dets.ids, dets.centers_px
+    return dets.point_ids, dets.points_px
+
+
+def same_view(ids: np.ndarray, positions: np.ndarray, geometry: ViewGeometry,
+              old_ids: np.ndarray, old_positions: np.ndarray, old_geometry: ViewGeometry,
+              limit_px: float, turn_deg: float) -> bool:
+    """Whether a view (:func:`view_marks` and geometry) repeats an older one: half its marks
+    or more seen there, moved ``limit_px`` on average at most and turned ``turn_deg`` at
+    most about either axis. Turning the board about its centre barely moves the marks on
+    average but is exactly the view a solve needs, hence the tilt test as well."""
+    shared, i_new, i_old = np.intersect1d(ids, old_ids, return_indices=True)
+    if len(shared) < 0.5 * len(ids):
+        return False
+    moved = np.linalg.norm(positions[i_new] - old_positions[i_old], axis=1)
+    turned = max(abs(geometry.tilt_x_deg - old_geometry.tilt_x_deg),
+                 abs(geometry.tilt_y_deg - old_geometry.tilt_y_deg))
+    return bool(moved.mean() <= limit_px and turned <= turn_deg)
 
 
 def empty_regions(counts: np.ndarray) -> list[str]:

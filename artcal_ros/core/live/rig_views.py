@@ -26,7 +26,7 @@ from artcal_ros.core.calibrate.rig_start import (
     spanning_tree,
 )
 from artcal_ros.core.detections import Detections
-from artcal_ros.core.live.coverage import Readiness
+from artcal_ros.core.live.coverage import Readiness, measures_board, same_view, view_marks
 from artcal_ros.core.live.view_geometry import (
     COVERAGE_GRID,
     MIN_COVERAGE,
@@ -161,31 +161,22 @@ class RigViews:
         tracked ones have markers only, which stand for the points)."""
         if dets is None:
             return False
-        if self.board.has_points and not (tracked and self.board.n_markers):
-            return len(dets.point_ids) >= max(self.config.min_markers, 8)
-        return len(dets) >= self.config.min_markers
+        return measures_board(self.board, dets, self.config.min_markers, tracked=tracked)
 
     def _features(self, dets: Detections) -> _Seen:
         # Outside the lock: the pose is a PnP solve of this camera's view only.
         size = (int(dets.image_size[0]), int(dets.image_size[1]))
         geometry = view_geometry(*solve_points(dets, self.board, self.config.points), size)
-        if self.board.n_markers:
-            return _Seen(dets.ids, dets.centers_px, geometry)
-        return _Seen(dets.point_ids, dets.points_px, geometry)
+        return _Seen(*view_marks(self.board, dets), geometry)
 
     def _parts(self, frame: Frame, tracked: bool) -> dict[str, _Seen]:
         return {n: self._features(d) for n, d in frame.items()
                 if n in self.names and d is not None and self.measures(d, tracked=tracked)}
 
     def _similar(self, new: _Seen, old: _Seen, size: tuple[int, int]) -> bool:
-        shared, i_new, i_old = np.intersect1d(new.ids, old.ids, return_indices=True)
-        if len(shared) < 0.5 * len(new.ids):
-            return False
-        moved = np.linalg.norm(new.positions[i_new] - old.positions[i_old], axis=1)
-        turned = max(abs(new.geometry.tilt_x_deg - old.geometry.tilt_x_deg),
-                     abs(new.geometry.tilt_y_deg - old.geometry.tilt_y_deg))
-        return (float(moved.mean()) <= self.config.novelty * math.hypot(*size)
-                and turned <= 0.5 * self.config.tilt_deg)
+        return same_view(new.ids, new.positions, new.geometry, old.ids, old.positions,
+                         old.geometry, self.config.novelty * math.hypot(*size),
+                         0.5 * self.config.tilt_deg)
 
     def _is_new(self, parts: dict[str, _Seen], frame: Frame) -> bool:
         # Caller holds the lock. New when some camera's part is like none of that camera's
