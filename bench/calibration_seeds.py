@@ -39,7 +39,8 @@ BOARD_SEEDS = (7200, 7210, 7220, 7230, 7310, 7320, 7330, 7340, 7350, 7360, 7370,
 # solves the same detections as wide
 SEED_PRESETS = {"webcam": ("webcam", 0, "plumb_bob", 0), "hd": ("hd", 1, "plumb_bob", 0),
                 "wide": ("wide", 2, "rational_polynomial", 0),
-                "wide-k3": ("wide", 2, "plumb_bob", 3)}
+                "wide-k3": ("wide", 2, "plumb_bob", 3),
+                "fisheye": ("fisheye", 3, "equidistant", 0)}
 RADII = (0.0, 0.25, 0.5, 0.75, 1.0)  # bins of radius / half the image diagonal
 
 
