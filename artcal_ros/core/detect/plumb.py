@@ -26,6 +26,10 @@ MAX_BEYOND_FOLD = 0.1
 # defocus bends short sides (a lower floor lets a clean frame's short outer sides weigh as
 # much as long ones)
 CURVATURE_FLOOR = 0.01
+# a frame fitted alone (nothing pooled yet) has its priors this much weaker: against one
+# frame's sides they would shrink the lens toward no distortion and bend the sides too little
+# (corners outward under barrel distortion); a pool's many frames outweigh them anyway
+LONE_FRAME_PRIOR = 0.01
 
 
 def lens_bend(lens: Lens, a: np.ndarray, u: np.ndarray, n: np.ndarray,
@@ -167,6 +171,8 @@ def estimate_division(model: SideModel, quads: np.ndarray, t: np.ndarray,
     # weak priors keep the r^4 and r^6 terms at zero unless the sides really ask for them
     # (the r^6 term lets the model follow a polynomial lens's image corners)
     prior = np.diag([1.0 / 0.5**2, 1.0 / 0.3**2, 1.0 / 0.05**2])
+    if not pooled_info.any():
+        prior = LONE_FRAME_PRIOR * prior
     info: np.ndarray = np.zeros((3, 3))
     own_info: np.ndarray = np.zeros((3, 3))
     own_grad: np.ndarray = np.zeros(3)
