@@ -2,8 +2,8 @@
 
 ``ARTCAL_THREADS`` sets how many (default 2, at most the CPU count); 1 runs
 everything on the caller's thread. Results do not depend on it. The pool is one per process,
-shared by every detector, created on first use under a lock; concurrent.futures joins its
-threads at interpreter exit.
+shared by every detector, created on first use under a lock (afresh in a forked child);
+concurrent.futures joins its threads at interpreter exit.
 """
 
 from __future__ import annotations
@@ -20,6 +20,17 @@ __all__ = ["run_all", "split_even", "threads"]
 
 _POOLS: dict[int, ThreadPoolExecutor] = {}
 _POOLS_LOCK = threading.Lock()
+
+
+def _forget_pools_in_child() -> None:
+    # A forked child inherits the pools but not their threads: work handed to them would wait
+    # forever (a multiprocessing worker detecting after its parent had). Start afresh.
+    global _POOLS_LOCK
+    _POOLS.clear()
+    _POOLS_LOCK = threading.Lock()
+
+
+os.register_at_fork(after_in_child=_forget_pools_in_child)
 MIN_RUN = 20_000  # work units (samples) below which a thread costs more than it saves
 
 
