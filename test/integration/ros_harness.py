@@ -136,17 +136,26 @@ class Probe:
         self.executor = SingleThreadedExecutor(context=self.context)
         self.executor.add_node(self.node)
         self._lock = threading.Lock()
-        self._thread = threading.Thread(target=self._spin, daemon=True)
+        self.spin_errors: list[str] = []  # what a callback or a wait raised (spinning goes on)
+        self._thread = threading.Thread(target=self._spin, daemon=True, name="probe spin")
         self._thread.start()
 
     def _spin(self) -> None:
         from rclpy.executors import ExternalShutdownException
 
-        try:
-            while self.context.ok():
+        # One error (a service's callback raising, an entity destroyed by a test's thread while
+        # the executor waited on it) must not end the spinning that every later test relies on.
+        while self.context.ok():
+            try:
                 self.executor.spin_once(timeout_sec=0.05)
-        except (ExternalShutdownException, RuntimeError):
-            pass
+            except ExternalShutdownException:
+                return
+            except Exception as e:
+                if not self.context.ok():
+                    return
+                if len(self.spin_errors) < 20:
+                    self.spin_errors.append(f"{type(e).__name__}: {e}")
+                time.sleep(0.05)
 
     def collect(self, msg_type: type, topic: str, qos: Any) -> list[Any]:
         """Subscribe and append every message to the returned list (thread-safe appends)."""

@@ -82,6 +82,7 @@ class StereoStreamer:
     (right 3 ms after left, within sync_tolerance), one rig frame every PERIOD_S."""
 
     def __init__(self, probe: Probe, frames: StereoFrames) -> None:
+        self.node = probe.node
         self.pubs = {n: probe.node.create_publisher(Image, f"/{n}/image", RELIABLE)
                      for n in frames.rig.names}
         self.frames = frames
@@ -104,7 +105,9 @@ class StereoStreamer:
         self._stop.set()
         self._thread.join(5.0)
         for pub in self.pubs.values():
-            pub.destroy()
+            # through the node: a publisher destroyed behind its back stays in the node's list
+            # and every later wait of the shared probe's executor fails on its handle
+            self.node.destroy_publisher(pub)
 
 
 @pytest.fixture
