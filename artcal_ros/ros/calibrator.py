@@ -165,8 +165,8 @@ class CalibratorNode(Node):
         self.set_info_client: Any = self.create_client(
             SetCameraInfo, "set_camera_info", callback_group=services)
         self.create_timer(1.0, self._publish_diagnostics, callback_group=timers)
-        # Publishers come and go (a driver restarts, a second one starts): the subscription's
-        # events choose again at once; this check catches what an event does not report.
+        # Publishers come and go (a driver restarts, a second one starts): the image QoS is
+        # chosen again from the graph on this check (the subscription carries no DDS events).
         self.create_timer(0.5, self._choose_image_qos, callback_group=timers)
 
     # --- state read across threads ---------------------------------------------------

@@ -7,11 +7,17 @@ transports is a small share of any frame over half a megabyte. So with ``image_q
 the subscription asks for what the publishers offer, the way ``ros2 topic echo`` and
 rosbag2 choose: reliable when every publisher of the topic is reliable, best effort as soon
 as one is not (a reliable reader does not match a best-effort writer), and chosen again
-whenever the set of publishers changes: at once when a publisher matches or offers an
-incompatible QoS (DDS events), and on a periodic check besides. With no publisher the
-subscription is left as it is, so a driver that restarts is met as before. The history is
-keep-last either way (:data:`IMAGE_DEPTH`): a keep-last reliable reader acknowledges what it
-overwrote, so it never holds the camera driver back.
+whenever the set of publishers changes, on the node's periodic check (:meth:`refresh`). With
+no publisher the subscription is left as it is, so a driver that restarts is met as before.
+
+The subscription carries no DDS event handlers (matched, incompatible QoS): a handler is a
+waitable of its own, and destroying it from one executor thread while another builds its wait
+set stops the node's executor (rclpy raises "cannot use Destroyable because destruction was
+requested" from the handler's ``add_to_wait_set``). Re-subscribing destroys the old
+subscription, so the choice and the incompatible-QoS warning come from the graph instead.
+
+The history is keep-last either way (:data:`IMAGE_DEPTH`): a keep-last reliable reader
+acknowledges what it overwrote, so it never holds the camera driver back.
 
 Frames lost on the way are counted from the publication sequence number each message
 carries (per publisher): a jump of n + 1 is n frames that never arrived, or that were
@@ -136,8 +142,8 @@ class ImageSubscription:
         mode: ``auto``, ``reliable`` or ``best_effort``.
         callback_group: the image callbacks' group.
         on_change: called with the new choice whenever the subscription is (re)made.
-        on_incompatible: called with a warning when a publisher cannot be matched (a forced
-            ``reliable`` against a best-effort publisher).
+        on_incompatible: called with a warning, on every check, while a publisher cannot be
+            matched (a forced ``reliable`` against a best-effort publisher).
     """
 
     def __init__(self, node: Node, msg_type: type, topic: str, callback: Callable[[Any], None],
@@ -165,23 +171,12 @@ class ImageSubscription:
         return [i.qos_profile.reliability == ReliabilityPolicy.RELIABLE for i in infos]
 
     def _subscribe(self) -> None:
-        events = SubscriptionEventCallbacks(matched=self._matched,
-                                            incompatible_qos=self._incompatible)
         self._subscription = self._node.create_subscription(
             self._type, self.topic, self._on_message, image_qos(self.choice.reliable),
-            callback_group=self._group, event_callbacks=events)
+            callback_group=self._group,
+            event_callbacks=SubscriptionEventCallbacks(use_default_callbacks=False))
         if self._on_change is not None:
             self._on_change(self.choice)
-
-    def _matched(self, _status: Any) -> None:
-        self.refresh()
-
-    def _incompatible(self, _status: Any) -> None:
-        if self.refresh() or self._on_incompatible is None:
-            return
-        self._on_incompatible(
-            f"a publisher of {self.topic} offers a QoS this {self.choice.text()} subscription "
-            "cannot match: its frames do not arrive (set image_qos to auto or best_effort)")
 
     def _on_message(self, msg: Any, info: MessageInfo) -> None:
         self.gaps.add(info)
@@ -190,13 +185,17 @@ class ImageSubscription:
     def refresh(self) -> bool:
         """Choose again from the publishers now; re-subscribe if the reliability changed.
 
+        Called from one timer (not thread safe against itself beyond its lock). With a
+        forced ``reliable`` and a best-effort publisher, warns through ``on_incompatible``.
+
         Returns:
             True if the subscription was re-made.
         """
-        if self._mode != "auto":
-            return False
         with self._lock:
             publishers = self._publishers()
+            if self._mode != "auto":
+                self._warn_unmatched(publishers)
+                return False
             if not publishers:
                 return False  # keep what matched the last publisher until the next one
             choice = choose_qos(self._mode, publishers)
@@ -209,3 +208,12 @@ class ImageSubscription:
             self.choice = choice
             self._subscribe()
         return True
+
+    def _warn_unmatched(self, publishers_reliable: Sequence[bool]) -> None:
+        unmatched = len(publishers_reliable) - sum(publishers_reliable)
+        if not self.choice.reliable or not unmatched or self._on_incompatible is None:
+            return
+        self._on_incompatible(
+            f"{unmatched} publisher(s) of {self.topic} offer best effort, which this "
+            f"{self.choice.text()} subscription cannot match: their frames do not arrive "
+            "(set image_qos to auto or best_effort)")

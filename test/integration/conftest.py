@@ -7,7 +7,7 @@ from collections.abc import Iterator
 import pytest
 
 from test.integration.frames import CalibrationBag, calibration_bag
-from test.integration.ros_harness import Probe, configure_ros_env, stop_all
+from test.integration.ros_harness import Probe, configure_ros_env, crashed_nodes, stop_all
 
 configure_ros_env()
 
@@ -22,9 +22,11 @@ def probe() -> Iterator[Probe]:
 
 @pytest.fixture(autouse=True)
 def _stop_node_processes() -> Iterator[None]:
-    """No node outlives its test, even a failed one."""
+    """No node outlives its test, even a failed one; none of them wrote a traceback."""
     yield
     stop_all()
+    crashed = crashed_nodes()
+    assert not crashed, "a node wrote a traceback:\n" + "\n".join(crashed)
 
 
 @pytest.fixture(scope="session")

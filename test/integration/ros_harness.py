@@ -64,6 +64,15 @@ def wait_until(predicate: Callable[[], Any], timeout: float, what: str,
 
 
 RUNNING: list[NodeProcess] = []  # stopped after each test by the conftest, pass or fail
+STARTED: list[NodeProcess] = []  # this test's nodes, their output checked by the conftest
+
+
+def crashed_nodes() -> list[str]:
+    """The nodes started in this test whose output holds a Python traceback (the list is
+    emptied): a node may refuse bad input, but never with a traceback."""
+    found = [f"{n.name}:\n{n.output()[-3000:]}" for n in STARTED if "Traceback" in n.output()]
+    STARTED.clear()
+    return found
 
 
 class NodeProcess(processes.NodeProcess):
@@ -80,6 +89,7 @@ class NodeProcess(processes.NodeProcess):
                          env=env)
         if per_test:  # else the fixture that started it stops it
             RUNNING.append(self)
+            STARTED.append(self)
 
     def wait(self, timeout: float) -> int:
         """Wait for the process to end by itself; its exit status (AssertionError, with the
