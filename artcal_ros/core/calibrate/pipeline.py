@@ -350,7 +350,8 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
         residuals_px=np.concatenate(res),
         point_view=np.concatenate([np.full(len(v), v.index) for v in views]),
         outliers_px=(np.concatenate(outliers) if outliers else np.zeros((0, 2))),
-        solve_time_s=time.monotonic() - start, weak_reason=weak[0] if weak else "")
+        solve_time_s=time.monotonic() - start, weak_reason=weak[0] if weak else "",
+        covariance=cov)
 
 
 def _poses_of(views: Sequence[ViewPoints], solved: Sequence[ViewPoints],

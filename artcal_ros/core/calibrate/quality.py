@@ -9,6 +9,7 @@
   (RMS and max over a dense grid of the whole image of the distance between where
   the true and the estimated camera project the same rays).
 - :func:`fold_radius_px`: where a distortion model stops being one-to-one.
+- :func:`uncertainty_map`: the projection uncertainty at every point of the image.
 """
 
 from __future__ import annotations
@@ -123,22 +124,50 @@ def parameter_effect_px(sol: Solution, image_size: tuple[int, int],
          image (p,); RMS and max over the image of the 1-sigma projection uncertainty of
          all parameters together).
     """
-    cam = solution_camera(sol, image_size)
-    pix = image_grid(image_size, max(image_size) / 24.0)
-    rays, ok = cam.unproject(pix)
-    rays = rays[ok]
-    if len(rays) == 0:
+    pix, A = _free_projection_jacobian(sol, image_size, max(image_size) / 24.0)
+    if len(pix) == 0:
         return np.full(len(sol.free), np.inf), float("inf"), float("inf")
-    groups = free_columns(sol.model, sol.free)
-    A, _ = project_jacobian(rays, np.zeros(3), np.zeros(3), sol.camera_matrix,
-                            sol.dist_coeffs, sol.model)
-    A = free_jacobian(A, groups)
     std = np.sqrt(np.maximum(np.diag(cov), 0.0))
-    per_param = np.array([
-        float(np.max(np.hypot(A[0::2, k], A[1::2, k]))) * std[k] for k in range(len(groups))])
+    per_param = np.array([float(np.max(np.hypot(A[0::2, k], A[1::2, k]))) * std[k]
+                          for k in range(A.shape[1])])
+    sigma = _point_sigma(A, cov)
+    return per_param, float(np.sqrt(np.mean(sigma ** 2))), float(sigma.max())
+
+
+def uncertainty_map(sol: Solution, image_size: tuple[int, int], cov: np.ndarray, *,
+                    step_px: float = 20.0) -> tuple[np.ndarray, np.ndarray]:
+    """The 1-sigma projection uncertainty at every point of a grid over the image, pixels.
+
+    Each grid pixel's ray (unprojected with the solved camera) is projected again with the
+    intrinsics' covariance ``cov`` (free parameters, order of ``sol.free``): the figure is
+    sqrt(var x + var y) of that image point. Pixels whose ray cannot be found are left out.
+
+    Returns:
+        (grid pixels (N, 2), sigma (N,)).
+    """
+    pix, A = _free_projection_jacobian(sol, image_size, step_px)
+    if len(pix) == 0:
+        return pix, np.zeros(0)
+    return pix, _point_sigma(A, cov)
+
+
+def _free_projection_jacobian(sol: Solution, image_size: tuple[int, int],
+                              step_px: float) -> tuple[np.ndarray, np.ndarray]:
+    """(grid pixels (N, 2) whose ray is found, d(projection)/d(free intrinsics) (2N, p))."""
+    cam = solution_camera(sol, image_size)
+    pix = image_grid(image_size, step_px)
+    rays, ok = cam.unproject(pix)
+    groups = free_columns(sol.model, sol.free)
+    if not np.any(ok):
+        return np.zeros((0, 2)), np.zeros((0, len(groups)))
+    A, _ = project_jacobian(rays[ok], np.zeros(3), np.zeros(3), sol.camera_matrix,
+                            sol.dist_coeffs, sol.model)
+    return pix[ok], free_jacobian(A, groups)
+
+
+def _point_sigma(A: np.ndarray, cov: np.ndarray) -> np.ndarray:
     var = np.einsum("ij,jk,ik->i", A, cov, A)
-    var_pt = np.maximum(var[0::2] + var[1::2], 0.0)
-    return per_param, float(np.sqrt(np.mean(var_pt))), float(np.sqrt(var_pt.max()))
+    return np.sqrt(np.maximum(var[0::2] + var[1::2], 0.0))
 
 
 def cross_validate(views: Sequence[ViewPoints], sol: Solution, *, folds: int = 5, seed: int = 0,

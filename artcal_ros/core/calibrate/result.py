@@ -61,6 +61,8 @@ class CalibrationResult:
             solved as one); the others were held (``calibrate.*`` parameters).
         weak_reason: why the view checks would have refused the set (solved anyway on
             request, ``accept_weak``); empty for a set they accept.
+        covariance: (p, p) covariance of the free intrinsics, in the order of ``free``
+            (:func:`~.quality.intrinsic_covariance`); empty when nothing was estimated.
     """
 
     camera_matrix: np.ndarray
@@ -90,6 +92,12 @@ class CalibrationResult:
     solve_time_s: float = 0.0
     free: tuple[str, ...] = ()
     weak_reason: str = ""
+    covariance: np.ndarray = field(default_factory=lambda: np.zeros((0, 0)), repr=False)
+
+    @property
+    def projection_uncertainty_px(self) -> float:
+        """The projection uncertainty, RMS over the image, pixels (1-sigma)."""
+        return self.projection_uncertainty_rms_px
 
     @property
     def camera(self) -> CameraModel:
@@ -209,6 +217,8 @@ def summary_dict(result: CalibrationResult) -> dict[str, Any]:
         "holdout_rms_px": r.holdout_rms_px,
         "projection_uncertainty_rms_px": r.projection_uncertainty_rms_px,
         "projection_uncertainty_max_px": r.projection_uncertainty_max_px,
+        "projection_uncertainty_px": {"rms": r.projection_uncertainty_rms_px,
+                                      "max": r.projection_uncertainty_max_px},
         "coverage": r.coverage,
         "points_used": len(r.points_px),
         "points_dropped": int(r.points_dropped),

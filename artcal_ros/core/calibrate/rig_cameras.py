@@ -97,7 +97,7 @@ def camera_result(k: int, size: tuple[int, int], points: str, sol: RigSolution,
         point_view=(np.concatenate([np.full(len(o.view), frames[o.frame]) for o, _ in mine])
                     if mine else np.zeros(0, np.int64)),
         outliers_px=np.concatenate(list(outliers)) if outliers else np.zeros((0, 2)),
-        free=cam.free)
+        free=cam.free, covariance=cov)
 
 
 def _keys(object_points: np.ndarray) -> list[tuple[float, float, float]]:
