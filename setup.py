@@ -122,7 +122,7 @@ setup(
     ],
     python_requires=">=3.10",
     install_requires=["setuptools", "numpy", "opencv-python-headless", "numba", "mcap",
-                      "mcap-ros2-support", "PyYAML"],
+                      "mcap-ros2-support", "PyYAML", "matplotlib"],
     extras_require={"test": ["pytest", "hypothesis", "rosbags", "ruff", "mypy", "types-PyYAML"]},
     # numba caches its compiled kernels next to the sources: they must be files
     zip_safe=False,
