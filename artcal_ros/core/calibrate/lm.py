@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import replace
 
 import numpy as np
@@ -163,28 +164,60 @@ def bundle_adjust(views: list[ViewPoints], K0: np.ndarray, D0: np.ndarray, model
             gb[k] = B.T @ r
         return (total if np.isfinite(total) else np.inf), U, g, W, V, gb
 
-    lam = 1e-3
     p = len(x_in)
+    x_in, x_ex = schur_lm(x_in, x_ex, normal_equations, cost, max_iterations=max_iterations,
+                          tolerance=tolerance)
+    K, D = unpack(x_in)
+    return K, D, x_ex[:, :3].copy(), x_ex[:, 3:].copy()
+
+
+# (error, U (p, p), g (p,), W (n, p, 6), V (n, 6, 6), gb (n, 6)) of the weighted residuals at
+# (global parameters, per-block 6-vectors): the blocks of the normal equations.
+NormalEquations = tuple[float, np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]
+
+
+def schur_lm(x_g: np.ndarray, x_f: np.ndarray,
+             normal_equations: Callable[[np.ndarray, np.ndarray], NormalEquations],
+             cost: Callable[[np.ndarray, np.ndarray], float], *, max_iterations: int,
+             tolerance: float, ridge: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
+    """Levenberg-Marquardt over global parameters and independent 6-vector blocks (poses).
+
+    The blocks are eliminated by a Schur complement, all at once, so a step costs one dense
+    solve of the global parameters however many blocks there are. Marquardt's damping scales
+    each diagonal; only steps that lower ``cost`` are taken.
+
+    Args:
+        x_g: (p,) the global parameters to start from; x_f: (n, 6) the blocks.
+        normal_equations: the blocks of J^T J and J^T r at a point (:data:`NormalEquations`).
+        cost: the weighted squared error at a point (inf where it cannot be computed).
+        max_iterations: at most this many accepted steps.
+        tolerance: stop once a step lowers the error by less than this fraction of it.
+        ridge: added to every block's diagonal (a block seen by too few points stays
+            invertible).
+
+    Returns:
+        (x_g, x_f) at the end.
+    """
+    lam = 1e-3
     eye6 = np.eye(6)
-    current, U, g, W, V, gb = normal_equations(x_in, x_ex)
+    current, U, g, W, V, gb = normal_equations(x_g, x_f)
     for _ in range(max_iterations):
         done = False
         improved = False
         while lam < 1e10:
-            # Poses eliminated view by view (Schur complement), all views at once.
-            Vi = np.linalg.inv(V + lam * V * eye6)
+            Vi = np.linalg.inv(V + lam * V * eye6 + ridge * eye6)
             WVi = W @ Vi
             S = U + lam * np.diag(np.diag(U)) - np.einsum("npk,nqk->pq", WVi, W)
             rhs = g - np.einsum("npk,nk->p", WVi, gb)
             try:
-                d_in = np.linalg.solve(S, rhs)
+                d_g = np.linalg.solve(S, rhs) if len(x_g) else np.zeros(0)
             except np.linalg.LinAlgError:
                 lam *= 10.0
                 continue
-            d_ex = np.einsum("nij,nj->ni", Vi, gb - np.einsum("npk,p->nk", W, d_in))
-            trial = cost(x_in + d_in, x_ex + d_ex)
+            d_f = np.einsum("nij,nj->ni", Vi, gb - np.einsum("npk,p->nk", W, d_g))
+            trial = cost(x_g + d_g, x_f + d_f)
             if trial < current:
-                x_in, x_ex = x_in + d_in, x_ex + d_ex
+                x_g, x_f = x_g + d_g, x_f + d_f
                 done = current - trial < tolerance * max(current, 1e-30)
                 lam = max(lam / 3.0, 1e-9)
                 improved = True
@@ -192,6 +225,5 @@ def bundle_adjust(views: list[ViewPoints], K0: np.ndarray, D0: np.ndarray, model
             lam *= 4.0
         if not improved or done:
             break
-        current, U, g, W, V, gb = normal_equations(x_in, x_ex)
-    K, D = unpack(x_in)
-    return K, D, x_ex[:, :3].copy(), x_ex[:, 3:].copy()
+        current, U, g, W, V, gb = normal_equations(x_g, x_f)
+    return x_g, x_f

@@ -14,7 +14,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from artcal_ros.core.calibrate.lm import point_weights
+from artcal_ros.core.calibrate.lm import point_weights, schur_lm
 from artcal_ros.core.calibrate.model import (
     DIST_NAMES,
     INTRINSIC_NAMES,
@@ -223,35 +223,9 @@ def rig_bundle_adjust(obs: list[RigObservation], cameras: list[RigCamera],
             gb[o.frame] += h[n_g:]
         return (total if np.isfinite(total) else np.inf), U, g, W, V, gb, n_rows
 
-    lam = 1e-3
-    eye6 = np.eye(6)
-    current, U, g, W, V, gb, n_rows = normal_equations(x_g, x_f)
-    for _ in range(max_iterations):
-        done = False
-        improved = False
-        while lam < 1e10:
-            Vi = np.linalg.inv(V + lam * V * eye6 + 1e-12 * eye6)
-            WVi = np.einsum("npk,nkq->npq", W, Vi)
-            S = U + lam * np.diag(np.diag(U)) - np.einsum("npk,nqk->pq", WVi, W)
-            rhs = g - np.einsum("npk,nk->p", WVi, gb)
-            try:
-                d_g = np.linalg.solve(S, rhs) if p else np.zeros(0)
-            except np.linalg.LinAlgError:
-                lam *= 10.0
-                continue
-            d_f = np.einsum("nij,nj->ni", Vi, gb - np.einsum("npk,p->nk", W, d_g))
-            trial = cost(x_g + d_g, x_f + d_f)
-            if trial < current:
-                x_g, x_f = x_g + d_g, x_f + d_f
-                done = current - trial < tolerance * max(current, 1e-30)
-                lam = max(lam / 3.0, 1e-9)
-                improved = True
-                break
-            lam *= 4.0
-        if not improved or done:
-            break
-        current, U, g, W, V, gb, n_rows = normal_equations(x_g, x_f)
-    current, U, g, W, V, gb, n_rows = normal_equations(x_g, x_f)
+    x_g, x_f = schur_lm(x_g, x_f, lambda xg, xf: normal_equations(xg, xf)[:6], cost,
+                        max_iterations=max_iterations, tolerance=tolerance, ridge=1e-12)
+    current, U, _, W, V, _, n_rows = normal_equations(x_g, x_f)
     # Covariance of the global parameters: the poses eliminated without damping.
     S0 = U - np.einsum("npk,nkl,nql->pq", W, np.linalg.pinv(V), W)
     dof = max(n_rows - p - 6 * n_frames, 1)
