@@ -28,7 +28,7 @@ from artcal_ros.core.errors import ParameterError
 from artcal_ros.core.live.coverage import ViewCollector
 from artcal_ros.core.params import load_params, validate
 from artcal_ros.synth import Camera, Photometry, random_poses, render_view
-from artcal_ros.synth.poses import marker_truth
+from test.unit.noisy_views import noisy_views
 
 ROOT = Path(__file__).resolve().parents[2]
 PARAMS = ROOT / "config" / "calibrator.yaml"
@@ -41,18 +41,6 @@ def square_camera() -> Camera:
     w, h = 640, 480
     K = np.array([[600.0, 0.0, (w - 1) / 2.0], [0.0, 600.0, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
     return Camera("plumb_bob", K, np.array([-0.35, 0.15, 0.0, 0.0, 0.0]), (w, h))
-
-
-def noisy_views(cam: Camera, n: int, seed: int, noise_px: float = 0.03) -> list[Detections]:
-    """Exact marker corners of ``n`` random views plus Gaussian noise (centres: their mean)."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for k, (rvec, tvec) in enumerate(random_poses(BOARD, cam, n, rng)):
-        corners, _, inside, _ = marker_truth(BOARD, cam, rvec, tvec)
-        noisy = corners[inside] + rng.normal(0.0, noise_px, corners[inside].shape)
-        out.append(Detections(BOARD.ids[inside], noisy, noisy.mean(axis=1), cam.size,
-                              source=f"view{k}"))
-    return out
 
 
 # --- parameters ------------------------------------------------------------------------------

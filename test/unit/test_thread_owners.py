@@ -20,8 +20,8 @@ from artcal_ros.core.live.saved_session import SessionStore
 from artcal_ros.core.live.stream import LiveDetection
 from artcal_ros.core.params import load_params
 from artcal_ros.ros.latest import LatestWorker
-from artcal_ros.synth import Camera, random_poses
-from artcal_ros.synth.poses import marker_truth
+from artcal_ros.synth import Camera
+from test.unit.noisy_views import noisy_views
 
 ROOT = Path(__file__).resolve().parents[2]
 PARAMS = ROOT / "config" / "calibrator.yaml"
@@ -29,16 +29,8 @@ BOARD = Board()
 CAM = Camera.preset("webcam")
 
 
-def views(n: int, seed: int, noise_px: float = 0.03) -> list[Detections]:
-    """Exact marker corners of ``n`` random views plus Gaussian noise (centres: their mean)."""
-    rng = np.random.default_rng(seed)
-    out = []
-    for k, (rvec, tvec) in enumerate(random_poses(BOARD, CAM, n, rng)):
-        corners, _, inside, _ = marker_truth(BOARD, CAM, rvec, tvec)
-        noisy = corners[inside] + rng.normal(0.0, noise_px, corners[inside].shape)
-        out.append(Detections(BOARD.ids[inside], noisy, noisy.mean(axis=1), CAM.size,
-                              source=f"view{k}"))
-    return out
+def views(n: int, seed: int) -> list[Detections]:
+    return noisy_views(CAM, n, seed)
 
 
 def started_since(before: set[threading.Thread]) -> dict[str, threading.Thread]:
