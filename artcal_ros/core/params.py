@@ -191,6 +191,10 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               check=_positive),
     ParamSpec("max_views", 40, "Views a solve uses at most (the most informative are chosen).",
               check=_positive),
+    ParamSpec("readiness.max_uncertainty", 0.1,
+              "The node is ready when min_views are collected and the projection uncertainty "
+              "(1-sigma, RMS over the whole image, from the live solve) is at or below this, "
+              "pixels.", check=_positive, allowed="a number of pixels > 0, e.g. 0.1"),
     ParamSpec("overlay.max_width", 960,
               "Width the node's ~/overlay image is scaled down to at most, pixels (a 1080p bgr8 "
               "overlay is 6.2 MB a message, 1.6 MB at 960 px).",
