@@ -9,10 +9,12 @@ import numpy as np
 
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.live.coverage import Readiness
+from artcal_ros.core.live.guidance import MATCH_THRESHOLD, NextPose
 
 _GREEN = (0, 220, 0)
 _RED = (0, 0, 230)
 _YELLOW = (0, 230, 230)
+_ORANGE = (0, 150, 255)
 
 
 def to_bgr8(image: np.ndarray) -> np.ndarray:
@@ -107,6 +109,27 @@ def render_overlay(image: np.ndarray, dets: Detections | None, counts: np.ndarra
     r, c, a = rows_px[inside], cols_px[inside], alpha[inside, None]
     out[r, c] = (out[r, c] * (1.0 - a) + colour[inside] * a).astype(np.uint8)
     return out
+
+
+def draw_next_pose(overlay: np.ndarray, suggestion: NextPose, *, zoom: float = 1.0,
+                   match: float = 0.0) -> None:
+    """Draw where the board should go next, in place: its outline, orange until the live
+    board matches it (``match`` >= :data:`MATCH_THRESHOLD`, see ``pose_match``), then green.
+
+    Args:
+        overlay: (H', W', 3) uint8 BGR, the overlay as :func:`render_overlay` made it.
+        suggestion: from ``next_pose`` (outline in full-size image pixels).
+        zoom: the overlay's scale against the camera image (W' / W).
+        match: how well the live board matches the suggestion, [0, 1].
+    """
+    if len(suggestion.outline_px) < 3:
+        return
+    h, w = overlay.shape[:2]
+    thick = max(2, round(max(0.4, min(w, h) / 900.0) * 3))
+    # pixel centres: (0, 0) is the centre of the top-left pixel at either scale
+    poly = np.round((suggestion.outline_px + 0.5) * zoom - 0.5).astype(np.int32)
+    colour = _GREEN if match >= MATCH_THRESHOLD else _ORANGE
+    cv2.polylines(overlay, [poly.reshape(-1, 1, 2)], True, colour, thick, cv2.LINE_AA)
 
 
 @functools.lru_cache(maxsize=16)
