@@ -2,11 +2,12 @@
 
 A calibrated set: ``summary.json`` (the result's summary with ``success`` true, its
 verdict, where the board was found and the caller's extra keys), ``detections.json`` (the
-``artcal detect --json`` records of every image) and the plots. A refused set still gets
+``artcal detect --json`` records of every image), ``report.pdf`` and its pages as PNGs
+(:mod:`artcal_ros.core.calibrate.report`). A refused set still gets
 ``DIR``: ``summary.json`` with ``success`` false and the ``reason``, the keys of DESIGN.md
 that apply without a calibration (``model``, ``points``, ``views_used`` empty,
 ``warnings``, ``tone_curve``, ``board_check``), ``detections.json`` and the coverage plot of
-the points detected.
+the points detected (report.pdf, verdict.png, coverage.png).
 """
 
 from __future__ import annotations
@@ -81,29 +82,32 @@ def _write_json(path: Path, data: Any) -> None:
 
 
 def write_report(directory: Path, result: CalibrationResult, dets: list[Detections],
-                 board: Board, extra: Mapping[str, Any] | None = None) -> None:
-    """summary.json (with ``extra`` keys), detections.json and the PNG plots."""
-    from artcal_ros.core.calibrate.report import write_plots
+                 board: Board, extra: Mapping[str, Any] | None = None,
+                 title: str = "") -> list[Path]:
+    """The report (:func:`artcal_ros.core.calibrate.report.write_report`: summary.json with
+    ``extra`` keys, report.pdf and its PNGs) and detections.json."""
+    from artcal_ros.core.calibrate.report import write_report as write_calibration_report
 
+    keys = dict(extra or {})
+    summary_extra = {"frames": len(dets),
+                     "sources_used": [dets[i].source for i in result.views_used], **keys}
+    written = write_calibration_report(
+        directory, result, tone_curve=keys.pop("tone_curve", None),
+        board_check=keys.pop("board_check", None), detections=dets, board=board,
+        extra=summary_extra, title=title)
     try:
-        directory.mkdir(parents=True, exist_ok=True)
-        summary = {"success": True, **result.to_summary_dict()}
-        summary["frames"] = len(dets)
-        summary["sources_used"] = [dets[i].source for i in result.views_used]
-        summary.update(extra or {})
-        _write_json(directory / "summary.json", summary)
         _write_json(directory / "detections.json", {"images": _records(dets, board)})
     except OSError as e:
         raise ArtcalError(f"cannot write the report into {directory}: {e.strerror}") from None
-    write_plots(directory, result)
+    return [*written, directory / "detections.json"]
 
 
 def write_refused_report(directory: Path, reason: str, dets: list[Detections], board: Board,
                          params: Mapping[str, Any], image_size: tuple[int, int],
-                         extra: Mapping[str, Any] | None = None) -> None:
+                         extra: Mapping[str, Any] | None = None) -> list[Path]:
     """The report of a set that gave no calibration: the reason, the detections and the
     coverage of the points detected (see the module docstring)."""
-    from artcal_ros.core.calibrate.report import write_detection_plots
+    from artcal_ros.core.calibrate.report import write_refused_report as write_refused
 
     per_image = []
     points = []
@@ -117,11 +121,11 @@ def write_refused_report(directory: Path, reason: str, dets: list[Detections], b
         "image_height": int(image_size[1]), "frames": len(dets), "views_used": [],
         "warnings": [reason], "per_image": per_image}
     summary.update(extra or {})
+    all_points = np.concatenate(points) if points else np.zeros((0, 2))
+    written = write_refused(directory, reason, image_size, all_points, images=len(dets),
+                            summary=summary)
     try:
-        directory.mkdir(parents=True, exist_ok=True)
-        _write_json(directory / "summary.json", summary)
         _write_json(directory / "detections.json", {"images": _records(dets, board)})
     except OSError as e:
         raise ArtcalError(f"cannot write the report into {directory}: {e.strerror}") from None
-    all_points = np.concatenate(points) if points else np.zeros((0, 2))
-    write_detection_plots(directory, image_size, all_points, len(dets))
+    return [*written, directory / "detections.json"]

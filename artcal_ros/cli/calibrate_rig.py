@@ -19,9 +19,10 @@ Writes ``DIR/<name>.yaml`` per camera (camera_calibration_parsers YAML; a pair w
 rectification R and P of camera_calibration's convention) and ``DIR/camchain.yaml``
 (Kalibr's, :mod:`artcal_ros.core.camchain`); ``--report DIR``: ``summary.json`` (the rig's
 ``extrinsics``, ``rectified_epipolar_rms_px`` and ``cameras`` with each camera's
-single-camera fields), ``pair_<a>_<b>.png`` per rectified pair and each camera's plots in
-``DIR/<name>/``. Exit status: 0 written; 1 no calibration (the reason, e.g. a camera that
-shares no frame with the others); 2 bad usage or input.
+single-camera fields), ``report.pdf`` with a page per rectified pair (also
+``pair_<a>_<b>.png``) and each camera's pages (also PNGs in ``DIR/<name>/``). Exit status:
+0 written; 1 no calibration (the reason, e.g. a camera that shares no frame with the others);
+2 bad usage or input.
 """
 
 from __future__ import annotations
@@ -176,20 +177,19 @@ def summary_dict(rig: RigResult, frames: RigFrames, board: Board) -> dict[str, A
 
 
 def write_report(directory: Path, rig: RigResult, frames: RigFrames, board: Board,
-                 points: str) -> None:
-    """summary.json, pair_<a>_<b>.png and each camera's plots in ``directory``/<name>/."""
-    from artcal_ros.core.calibrate.report import write_plots
-    from artcal_ros.core.calibrate.rig_report import write_pair_pages
+                 points: str, progress: Any = None) -> None:
+    """summary.json and the rig's report (report.pdf, verdict.png, pair_<a>_<b>.png and each
+    camera's pages in ``directory``/<name>/: :mod:`artcal_ros.core.calibrate.rig_report`)."""
+    from artcal_ros.core.calibrate.rig_report import write_rig_report
 
+    summary = summary_dict(rig, frames, board)
     try:
         directory.mkdir(parents=True, exist_ok=True)
-        (directory / "summary.json").write_text(
-            json.dumps(summary_dict(rig, frames, board), indent=1) + "\n")
+        (directory / "summary.json").write_text(json.dumps(summary, indent=1) + "\n")
     except OSError as e:
         raise ArtcalError(f"cannot write the report into {directory}: {e.strerror}") from None
-    write_pair_pages(directory, rig, frames.detections, board, points)
-    for n in rig.names:
-        write_plots(directory / n, rig.cameras[n])
+    write_rig_report(directory, rig, frames.detections, board, points,
+                     checks=summary["cameras"], progress=progress)
 
 
 def _refused_report(directory: Path, reason: str, frames: RigFrames) -> None:
@@ -270,7 +270,7 @@ def run_rig(args: argparse.Namespace, params: dict[str, Any], board: Board) -> i
     for w in write_outputs(out, rig, frames.topics):
         warn(w)
     if args.report:
-        write_report(Path(args.report), rig, frames, board, str(params["points"]))
+        write_report(Path(args.report), rig, frames, board, str(params["points"]), say)
     print(rig_text(rig, frames))
     written = [str(out / f"{n}.yaml") for n in names] + [str(out / "camchain.yaml")]
     print(f"wrote {', '.join(written)} ({time.monotonic() - start:.1f} s)")

@@ -374,8 +374,9 @@ def test_cli_calibrates_images_and_writes_report(tmp_path: Path,
     assert projection_difference(Camera.preset("webcam"), info)[0] < 0.3
     summary = json.loads((report / "summary.json").read_text())
     assert summary["points"] == "corners" and len(summary["views_used"]) >= 4
-    assert {p.name for p in report.glob("*.png")} == {"residuals.png", "coverage.png",
-                                                      "per_view_error.png"}
+    assert {"residuals.png", "coverage.png", "per_view_error.png", "verdict.png"} <= {
+        p.name for p in report.glob("*.png")}
+    assert (report / "report.pdf").exists()
 
 
 def test_bag_topic_choice() -> None:

@@ -1,162 +1,267 @@
-"""Plots of a calibration, drawn with OpenCV (no plotting library needed).
+"""The calibration report a user reads: ``report.pdf`` and each page as a PNG, with
+``summary.json`` beside them.
 
-- ``residuals.png``: every point's residual vector over the image, magnified; outliers
-  that were dropped as red crosses.
-- ``coverage.png``: where the points fall in the image, with the 8 x 6 coverage grid
-  shaded by how many points each cell holds.
-- ``per_view_error.png``: the RMS reprojection error of each view used, as bars.
+:func:`write_report` is the one entry point for a calibration (``artcal calibrate --report``
+and the node after every successful solve); :func:`write_refused_report` for a set that gave
+none. A calibration's pages, in order (PNG name in brackets):
 
-A set that gave no calibration has only ``coverage.png``, of the points detected.
+1. the verdict in plain words and what to do if it is not good (``verdict.png``);
+2. the residual vectors over the image, magnified, with the scale (``residuals.png``);
+3. the residual histogram per point type (``residual_histogram.png``);
+4. the projection uncertainty map with contours (``uncertainty.png``);
+5. the distortion map: displacement from the pinhole image (``distortion.png``);
+6. the coverage of every point used (``coverage.png``);
+7. the error per picture, with the pictures left out and why (``per_view_error.png``);
+8. the intrinsics with their standard deviations, the tone-curve and board checks in words
+   (``intrinsics.png``).
+
+A refused set has the verdict page (why, what to add) and the coverage of the points
+detected. Every file is written whole under a temporary name and then renamed, so a reader
+never sees half a report. Plots are drawn with matplotlib's Agg renderer: no display needed.
 """
 
 from __future__ import annotations
 
+import io
+import json
+import os
+from collections.abc import Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
-import cv2
 import numpy as np
+from matplotlib.backends.backend_pdf import PdfPages
+from matplotlib.figure import Figure
 
+from artcal_ros.core.board import Board
+from artcal_ros.core.calibrate.model import project
+from artcal_ros.core.calibrate.report_pages import numbers_page, verdict_page
+from artcal_ros.core.calibrate.report_plots import (
+    coverage_figure,
+    distortion_figure,
+    histogram_figure,
+    per_view_figure,
+    residual_figure,
+    uncertainty_figure,
+)
+from artcal_ros.core.calibrate.report_text import plain_verdict, refused_verdict
 from artcal_ros.core.calibrate.result import CalibrationResult
-from artcal_ros.core.calibrate.views import COVERAGE_GRID
+from artcal_ros.core.calibrate.views import feature_term, lens_corrected_centers, view_points
+from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError
 
-_FONT = cv2.FONT_HERSHEY_SIMPLEX
-_BLACK = (0, 0, 0)
-_GREY = (170, 170, 170)
-_BLUE = (180, 90, 20)
-_RED = (30, 30, 220)
+__all__ = ["PNG_DPI", "PdfReport", "calibration_pages", "point_kinds", "write_plots",
+           "write_refused_report", "write_report"]
+
+PNG_DPI = 100  # an 11 x 7.5 inch page is 1100 x 750 px
+_KIND_NAMES = {"chessboard": "chessboard corners", "charuco": "ChArUco corners",
+               "circles": "circle centres", "acircles": "circle centres"}
 
 
-def _canvas(image_size: tuple[int, int], width: int = 960,
-            top: int = 40) -> tuple[np.ndarray, float, int]:
-    """A white canvas showing the image frame: (canvas, pixels-per-image-pixel, top margin)."""
-    w, h = image_size
-    scale = width / w
-    canvas = np.full((round(h * scale) + top + 10, width + 20, 3), 255, np.uint8)
-    cv2.rectangle(canvas, (10, top), (10 + width, top + round(h * scale)), _BLACK, 1)
-    return canvas, scale, top
+def _point_name(board: Board | None, points: str) -> str:
+    if board is not None and board.board_type in _KIND_NAMES:
+        return _KIND_NAMES[board.board_type]
+    marker = "tag" if board is not None and board.board_type == "aprilgrid" else "marker"
+    return f"{marker} {'centres' if points == 'centers' else 'corners'}"
 
 
-def _to_canvas(points: np.ndarray, scale: float, top: int) -> np.ndarray:
-    return np.column_stack([10 + points[:, 0] * scale, top + points[:, 1] * scale])
-
-
-def residual_plot(result: CalibrationResult) -> np.ndarray:
-    """BGR image of the residual vectors over the image."""
-    canvas, scale, top = _canvas(result.image_size)
-    norms = np.linalg.norm(result.residuals_px, axis=1)
-    ref = float(np.percentile(norms, 95)) if len(norms) else 1.0
-    gain = 15.0 / max(ref, 1e-6)  # the 95th percentile residual draws 15 canvas pixels
-    start = _to_canvas(result.points_px, scale, top)
-    end = start + result.residuals_px * gain
-    for a, b in zip(start, end, strict=True):
-        cv2.line(canvas, (round(a[0]), round(a[1])),
-                 (round(b[0]), round(b[1])), _BLUE, 1, cv2.LINE_AA)
-        cv2.circle(canvas, (round(a[0]), round(a[1])), 1, _BLACK, -1)
-    for p in _to_canvas(result.outliers_px, scale, top):
-        x, y = round(p[0]), round(p[1])
-        cv2.line(canvas, (x - 4, y - 4), (x + 4, y + 4), _RED, 2)
-        cv2.line(canvas, (x - 4, y + 4), (x + 4, y - 4), _RED, 2)
-    text = (f"residuals x{gain:.0f}: RMS {result.reprojection_rms_px:.3f} px, max "
-            f"{result.reprojection_max_px:.3f} px; {len(result.outliers_px)} outliers (red)")
-    cv2.putText(canvas, text, (10, 27), _FONT, 0.6, _BLACK, 1, cv2.LINE_AA)
-    return canvas
-
-
-def coverage_plot(result: CalibrationResult) -> np.ndarray:
-    """BGR image of the points over the image and the coverage grid."""
-    gx, gy = COVERAGE_GRID
-    text = (f"{len(result.points_px)} points from {len(result.views_used)} views; "
-            f"{100 * result.coverage:.0f}% of the {gx}x{gy} grid covered (pink: empty)")
-    return points_plot(result.image_size, result.points_px, text)
-
-
-def points_plot(image_size: tuple[int, int], points_px: np.ndarray, text: str) -> np.ndarray:
-    """BGR image of points over the image, the coverage grid shaded by how many each cell
-    holds; ``points_px`` (P, 2) pixels, ``text`` the title."""
-    canvas, scale, top = _canvas(image_size)
-    w, h = image_size
-    gx, gy = COVERAGE_GRID
-    points_px = np.asarray(points_px, np.float64).reshape(-1, 2)
-    points_px = points_px[np.all(np.isfinite(points_px), axis=1)]
-    cx = np.clip((points_px[:, 0] / w * gx).astype(int), 0, gx - 1)
-    cy = np.clip((points_px[:, 1] / h * gy).astype(int), 0, gy - 1)
-    counts = np.zeros((gy, gx))
-    np.add.at(counts, (cy, cx), 1)
-    top_count = max(float(counts.max()), 1.0)
-    for j in range(gy):
-        for i in range(gx):
-            x0, x1 = int(10 + i * w / gx * scale), int(10 + (i + 1) * w / gx * scale)
-            y0, y1 = int(top + j * h / gy * scale), int(top + (j + 1) * h / gy * scale)
-            if counts[j, i] == 0:
-                colour = (210, 210, 255)  # empty cells in pink: nothing measured there
-            else:
-                g = int(255 - 90 * counts[j, i] / top_count)
-                colour = (g, 255, g)
-            cv2.rectangle(canvas, (x0, y0), (x1, y1), colour, -1)
-            cv2.rectangle(canvas, (x0, y0), (x1, y1), _GREY, 1)
-    for p in _to_canvas(points_px, scale, top):
-        cv2.circle(canvas, (round(p[0]), round(p[1])), 1, _BLUE, -1)
-    cv2.putText(canvas, text, (10, 27), _FONT, 0.6, _BLACK, 1, cv2.LINE_AA)
-    return canvas
-
-
-def per_view_plot(result: CalibrationResult) -> np.ndarray:
-    """BGR bar chart of each used view's RMS error."""
-    errors = np.asarray(result.per_view_rms_px, dtype=np.float64)
-    n = max(len(errors), 1)
-    width, height, left, top, bottom = 960, 360, 70, 40, 50
-    bar = max(2, (width - left - 20) // n)
-    canvas = np.full((height, left + bar * n + 30, 3), 255, np.uint8)
-    y_max = max(float(errors.max()) if len(errors) else 1.0, 1e-3) * 1.15
-    plot_h = height - top - bottom
-
-    def y_of(v: float) -> int:
-        return round(top + plot_h * (1.0 - v / y_max))
-
-    for k in range(6):  # y axis ticks
-        v = y_max * k / 5
-        y = y_of(v)
-        cv2.line(canvas, (left - 5, y), (left + bar * n, y), (230, 230, 230), 1)
-        cv2.putText(canvas, f"{v:.3f}", (5, y + 4), _FONT, 0.4, _BLACK, 1, cv2.LINE_AA)
-    for i, e in enumerate(errors):
-        x0 = left + i * bar + 1
-        cv2.rectangle(canvas, (x0, y_of(float(e))), (x0 + bar - 2, y_of(0.0)), _BLUE, -1)
-        if n <= 40 or i % max(1, n // 40) == 0:
-            cv2.putText(canvas, str(result.views_used[i]), (x0, height - bottom + 15), _FONT,
-                        0.35, _BLACK, 1, cv2.LINE_AA)
-    med = float(np.median(errors)) if len(errors) else 0.0
-    cv2.line(canvas, (left, y_of(med)), (left + bar * n, y_of(med)), _RED, 1)
-    cv2.line(canvas, (left, top), (left, y_of(0.0)), _BLACK, 1)
-    cv2.line(canvas, (left, y_of(0.0)), (left + bar * n, y_of(0.0)), _BLACK, 1)
-    cv2.putText(canvas, f"RMS reprojection error per view, px (red: median {med:.3f} px)",
-                (10, 25), _FONT, 0.6, _BLACK, 1, cv2.LINE_AA)
-    cv2.putText(canvas, "view (position in the input)", (left, height - 12), _FONT, 0.45,
-                _BLACK, 1, cv2.LINE_AA)
-    return canvas
-
-
-def write_plots(directory: Path, result: CalibrationResult) -> list[Path]:
-    """Write residuals.png, coverage.png and per_view_error.png into ``directory``."""
-    directory.mkdir(parents=True, exist_ok=True)
+def point_kinds(result: CalibrationResult,
+                detections: Sequence[Detections | None] | None = None,
+                board: Board | None = None) -> dict[str, np.ndarray]:
+    """Residuals (N, 2) pixels by point type: the points solved from, and for a marker board
+    (with ``detections``, the list the result's ``views_used`` index, and ``board``) the other
+    type of point measured with the same camera and board poses."""
+    used = _point_name(board, result.points)
+    kinds = {f"{used} (solved from)": np.asarray(result.residuals_px)}
+    if detections is None or board is None or board.has_points or not board.n_markers:
+        return kinds
+    other = "centers" if result.points == "corners" else "corners"
+    cam = result.camera
     out = []
-    for name, image in (("residuals.png", residual_plot(result)),
-                        ("coverage.png", coverage_plot(result)),
-                        ("per_view_error.png", per_view_plot(result))):
-        out.append(_write(directory / name, image))
-    return out
+    for k, i in enumerate(result.views_used):
+        if i >= len(detections):
+            return kinds  # not the list the result was solved from
+        det = detections[i]
+        if det is None:
+            continue
+        v = view_points(det, board, other, i)
+        if not len(v):
+            continue
+        if other == "centers":
+            v = lens_corrected_centers(v, cam)
+        predicted = project(v.object_points, result.rvecs[k], result.tvecs[k],
+                            result.camera_matrix, result.dist_coeffs, result.model)
+        out.append(v.image_points - predicted)
+    if out:
+        res = np.concatenate(out)
+        # points the solve left out as outliers are not the other type's business either
+        kinds[f"{_point_name(board, other)} (checked)"] = res[np.linalg.norm(res, axis=1) < 5.0]
+    return kinds
 
 
-def write_detection_plots(directory: Path, image_size: tuple[int, int],
-                          points_px: np.ndarray, views: int) -> list[Path]:
-    """The plot a set without a calibration still has: coverage.png of the points detected
-    (``points_px`` (P, 2) pixels, from ``views`` images)."""
-    directory.mkdir(parents=True, exist_ok=True)
-    text = f"{len(points_px)} points detected in {views} images (no calibration)"
-    return [_write(directory / "coverage.png", points_plot(image_size, points_px, text))]
+def calibration_pages(result: CalibrationResult, *, tone_curve: Mapping[str, Any] | None = None,
+                      board_check: Mapping[str, Any] | None = None,
+                      detections: Sequence[Detections | None] | None = None,
+                      board: Board | None = None, title: str = "",
+                      first_page: bool = True) -> list[tuple[str, Figure]]:
+    """The report's pages of a calibration: (PNG file name, figure), in order (see the module
+    docstring); ``first_page`` False leaves out the verdict page (a rig's cameras)."""
+    feature = feature_term(board) if board is not None else "markers"
+    name = title or "Camera calibration report"
+    pages: list[tuple[str, Figure]] = []
+    if first_page:
+        verdict = plain_verdict(result, board_check=board_check, tone_curve=tone_curve,
+                                feature=feature)
+        pages.append(("verdict.png", verdict_page(verdict, name)))
+    pages += [
+        ("residuals.png", residual_figure(result)),
+        ("residual_histogram.png", histogram_figure(point_kinds(result, detections, board))),
+        ("uncertainty.png", uncertainty_figure(result)),
+        ("distortion.png", distortion_figure(result)),
+        ("coverage.png", coverage_figure(
+            result.image_size, result.points_px,
+            f"Coverage: every point used, from {len(result.views_used)} pictures",
+            result.outliers_px)),
+        ("per_view_error.png", per_view_figure(result)),
+        ("intrinsics.png", numbers_page(result, tone_curve, board_check)),
+    ]
+    if title:
+        for _, fig in pages[1 if first_page else 0:]:
+            fig.text(0.96, 0.975, title, ha="right", va="top", fontsize=9, color="#666")
+    return pages
 
 
-def _write(path: Path, image: np.ndarray) -> Path:
-    if not cv2.imwrite(str(path), image):
-        raise ArtcalError(f"cannot write {path}")
+def _replace_write(path: Path, data: bytes) -> Path:
+    """Write ``data`` to ``path`` whole: a temporary file beside it, then a rename."""
+    tmp = path.with_name(f".{path.name}.tmp")
+    try:
+        tmp.write_bytes(data)
+        os.replace(tmp, path)
+    except OSError as e:
+        raise ArtcalError(f"cannot write {path}: {e.strerror}") from None
     return path
+
+
+class PdfReport:
+    """report.pdf and the pages' PNGs of one report directory, written as pages are added;
+    :meth:`close` puts the PDF in place."""
+
+    def __init__(self, directory: str | Path, pdf_name: str = "report.pdf") -> None:
+        self.directory = Path(directory).expanduser()
+        try:
+            self.directory.mkdir(parents=True, exist_ok=True)
+        except OSError as e:
+            raise ArtcalError(f"cannot write the report into {self.directory}: "
+                              f"{e.strerror}") from None
+        self.pdf_path = self.directory / pdf_name
+        self._buffer = io.BytesIO()
+        self._pdf = PdfPages(self._buffer, metadata={"Title": "Camera calibration report",
+                                                     "Creator": "artcal_ros"})
+        self.written: list[Path] = []
+        self.pages = 0
+
+    def add(self, figure: Figure, png_name: str | None) -> None:
+        """One page; also ``png_name`` in the directory (a subfolder is made if named)."""
+        self._pdf.savefig(figure)
+        self.pages += 1
+        if png_name:
+            png = io.BytesIO()
+            figure.savefig(png, format="png", dpi=PNG_DPI)
+            path = self.directory / png_name
+            path.parent.mkdir(parents=True, exist_ok=True)
+            self.written.append(_replace_write(path, png.getvalue()))
+
+    def close(self) -> list[Path]:
+        """Write report.pdf; the paths written, the PDF first."""
+        self._pdf.close()
+        self.written.insert(0, _replace_write(self.pdf_path, self._buffer.getvalue()))
+        return self.written
+
+
+def _write_summary(directory: Path, summary: Mapping[str, Any]) -> Path:
+    return _replace_write(directory / "summary.json",
+                          (json.dumps(summary, indent=1) + "\n").encode())
+
+
+def write_report(directory: str | Path, result: CalibrationResult, *,
+                 tone_curve: Mapping[str, Any] | None = None,
+                 board_check: Mapping[str, Any] | None = None,
+                 detections: Sequence[Detections] | None = None,
+                 board: Board | None = None,
+                 extra: Mapping[str, Any] | None = None,
+                 title: str = "") -> list[Path]:
+    """Write a calibration's report into ``directory`` (made if missing).
+
+    ``summary.json`` (the result's summary with ``success`` true, ``tone_curve``,
+    ``board_check`` and the ``extra`` keys), ``report.pdf`` and each page as a PNG (the module
+    docstring lists them).
+
+    Args:
+        directory: where to write.
+        result: the calibration.
+        tone_curve: the tone curve used (``ToneEstimate.as_dict()``), if known.
+        board_check: the board check (``BoardCheck.as_dict()``), if known.
+        detections: the list the result was solved from (``views_used`` are positions in
+            it) and ``board``: with both, the histogram also checks the other type of point
+            of a marker board, and the advice names the board's features.
+        extra: more keys for summary.json.
+        title: the report's title (e.g. the camera's name).
+
+    Returns:
+        The files written: report.pdf, the PNGs, summary.json.
+
+    Raises:
+        ArtcalError: the directory or a file cannot be written.
+    """
+    out = Path(directory).expanduser()
+    summary: dict[str, Any] = {"success": True, **result.to_summary_dict()}
+    if tone_curve is not None:
+        summary["tone_curve"] = dict(tone_curve)
+    if board_check is not None:
+        summary["board_check"] = dict(board_check)
+    summary.update(extra or {})
+    report = PdfReport(out)
+    for png, fig in calibration_pages(result, tone_curve=tone_curve, board_check=board_check,
+                                      detections=detections, board=board, title=title):
+        report.add(fig, png)
+    written = report.close()
+    return [*written, _write_summary(out, summary)]
+
+
+def write_plots(directory: str | Path, result: CalibrationResult) -> list[Path]:
+    """Only the PNGs of a calibration's pages (no PDF, no summary)."""
+    out = Path(directory).expanduser()
+    out.mkdir(parents=True, exist_ok=True)
+    written = []
+    for png, fig in calibration_pages(result):
+        buf = io.BytesIO()
+        fig.savefig(buf, format="png", dpi=PNG_DPI)
+        written.append(_replace_write(out / png, buf.getvalue()))
+    return written
+
+
+def write_refused_report(directory: str | Path, reason: str, image_size: tuple[int, int],
+                         points_px: np.ndarray, *, images: int,
+                         summary: Mapping[str, Any] | None = None,
+                         title: str = "") -> list[Path]:
+    """The report of a set that gave no calibration: report.pdf with the reason in words and
+    the coverage of the points detected, ``verdict.png``, ``coverage.png`` and (given)
+    ``summary`` as summary.json.
+
+    Args:
+        reason: why there is no calibration.
+        image_size: (width, height), pixels.
+        points_px: (P, 2) every board point detected, pixels.
+        images: how many images were read.
+    """
+    out = Path(directory).expanduser()
+    pts = np.asarray(points_px, np.float64).reshape(-1, 2)
+    report = PdfReport(out)
+    report.add(verdict_page(refused_verdict(reason, images=images, points=len(pts)),
+                            title or "Camera calibration report"), "verdict.png")
+    report.add(coverage_figure(image_size, pts, f"Coverage: every point detected in {images} "
+                                                "pictures (no calibration)"), "coverage.png")
+    written = report.close()
+    if summary is not None:
+        written.append(_write_summary(out, summary))
+    return written

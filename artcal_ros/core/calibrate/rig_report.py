@@ -1,42 +1,50 @@
-"""The report page of each rectified pair of a rig, drawn with OpenCV.
+"""The report of a rig: report.pdf with the rig's first page, a page per rectified pair and
+each camera's pages, and each page as a PNG.
 
-``pair_<a>_<b>.png``, top to bottom:
-
-- the rig from above: every camera's centre and optical axis in the reference camera's
-  frame (x to the right, z up the page), and where the board's centre was in the frames
-  used (grey dots);
-- the residual vectors of camera a and of camera b over their images (the joint solve's);
-- the epipolar error after rectification: for every board point both cameras measure in a
-  frame, the row difference of its two rectified images (the column difference for a
-  vertical pair), against its position along the rectified image.
+Pages, in order (PNG in brackets): the rig's verdict in words (``verdict.png``); for each
+rectified pair (``pair_<a>_<b>.png``): the rig from above (every camera's centre and optical
+axis in the reference camera's frame, x to the right, z up the page, and the board's centre in
+the frames used), the residual vectors of camera a and of camera b over their images (the
+joint solve's), and the epipolar error after rectification (for every board point both
+cameras measure in a frame, the row difference of its two rectified images, the column
+difference for a vertical pair, against its position along the rectified image); then each
+camera's pages as one camera's report has them (``<name>/*.png``).
 """
 
 from __future__ import annotations
 
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
+from typing import Any
 
 import cv2
 import numpy as np
+from matplotlib.figure import Figure
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate.rectify import rectified_points
-from artcal_ros.core.calibrate.report import residual_plot
+from artcal_ros.core.calibrate.report import PdfReport, calibration_pages
+from artcal_ros.core.calibrate.report_pages import verdict_page
+from artcal_ros.core.calibrate.report_plots import (
+    BLUE,
+    GREY,
+    RED,
+    draw_residuals,
+    image_axes,
+    page,
+    residual_gain,
+)
+from artcal_ros.core.calibrate.report_text import PlainVerdict, plain_verdict
 from artcal_ros.core.calibrate.rig_result import Pair, RigResult
-from artcal_ros.core.calibrate.views import view_points
+from artcal_ros.core.calibrate.verdict import LEVELS
+from artcal_ros.core.calibrate.views import feature_term, view_points
 from artcal_ros.core.detections import Detections
-from artcal_ros.core.errors import ArtcalError
 
-_FONT = cv2.FONT_HERSHEY_SIMPLEX
-_BLACK = (0, 0, 0)
-_GREY = (170, 170, 170)
-_BLUE = (180, 90, 20)
-_RED = (30, 30, 220)
-_WIDTH = 980
+__all__ = ["epipolar_errors", "pair_page", "rig_verdict_words", "write_rig_report"]
 
-
-def _title(canvas: np.ndarray, text: str) -> None:
-    cv2.putText(canvas, text, (10, 25), _FONT, 0.6, _BLACK, 1, cv2.LINE_AA)
+# rectified epipolar RMS at or below which a pair is good, px (rows agree to a fraction of a
+# pixel: stereo matching along rows works)
+EPIPOLAR_GOOD_PX = 0.5
 
 
 def _board_centres(rig: RigResult, board: Board) -> np.ndarray:
@@ -47,52 +55,6 @@ def _board_centres(rig: RigResult, board: Board) -> np.ndarray:
            for r, t in zip(np.asarray(rig.board_rvecs).reshape(-1, 3),
                            np.asarray(rig.board_tvecs, np.float64).reshape(-1, 3), strict=True)]
     return np.array(out).reshape(-1, 3)
-
-
-def geometry_plot(rig: RigResult, pair: Pair, board: Board, height: int = 440) -> np.ndarray:
-    """BGR image of the rig from above (x right, z up), the pair's cameras in blue."""
-    canvas = np.full((height, _WIDTH, 3), 255, np.uint8)
-    centres, axes = {}, {}
-    for n in rig.names:
-        R, t = rig.extrinsics[rig.reference, n] if n != rig.reference else (np.eye(3),
-                                                                            np.zeros(3))
-        centres[n] = -R.T @ t               # the camera's centre in the reference frame
-        axes[n] = R.T @ np.array([0.0, 0.0, 1.0])
-    boards = _board_centres(rig, board)
-    xz = np.array([[c[0], c[2]] for c in centres.values()])
-    spread = max(float(np.ptp(xz[:, 0])), float(np.ptp(xz[:, 1])), 0.05)
-    reach = spread * 1.5                     # axis length drawn, metres
-    pts = np.vstack([xz, xz + reach * np.array([[a[0], a[2]] for a in axes.values()]),
-                     boards[:, [0, 2]] if len(boards) else np.zeros((0, 2))])
-    lo, hi = pts.min(axis=0), pts.max(axis=0)
-    scale = min((_WIDTH - 80) / max(hi[0] - lo[0], 1e-6),
-                (height - 110) / max(hi[1] - lo[1], 1e-6))
-    left = (_WIDTH - (hi[0] - lo[0]) * scale) / 2   # centred across the page
-
-    def at(x: float, z: float) -> tuple[int, int]:
-        return (round(left + (x - lo[0]) * scale), round(height - 30 - (z - lo[1]) * scale))
-
-    for b in boards:
-        cv2.circle(canvas, at(b[0], b[2]), 3, _GREY, -1)
-    for k, n in enumerate(rig.names):
-        c, a = centres[n], axes[n]
-        colour = _BLUE if n in pair else _BLACK
-        cv2.arrowedLine(canvas, at(c[0], c[2]), at(c[0] + reach * a[0], c[2] + reach * a[2]),
-                        colour, 2, cv2.LINE_AA, tipLength=0.06)
-        cv2.circle(canvas, at(c[0], c[2]), 5, colour, -1)
-        x, y = at(c[0], c[2])
-        width = cv2.getTextSize(n, _FONT, 0.5, 1)[0][0]
-        # names alternate left and right of their cameras, so neighbours' do not overlap
-        cv2.putText(canvas, n, (x - 10 - width if k % 2 == 0 else x + 10, y + 5), _FONT, 0.5,
-                    colour, 1, cv2.LINE_AA)
-    p = rig.pairs[pair]
-    _title(canvas, "the rig from above (x right, z forward; grey: the board's centre in each "
-                   "frame used)")
-    cv2.putText(canvas, f"{pair[0]} -> {pair[1]}: baseline {p.baseline_m:.6f} m +- "
-                        f"{p.baseline_std_m * 1000:.3f} mm, rotation {p.rotation_deg:.3f} deg, "
-                        f"{p.shared_frames} shared frames", (10, 50), _FONT, 0.5, _BLACK, 1,
-                cv2.LINE_AA)
-    return canvas
 
 
 def epipolar_errors(rig: RigResult, pair: Pair,
@@ -130,63 +92,160 @@ def epipolar_errors(rig: RigResult, pair: Pair,
     return x[ok], e[ok]
 
 
-def epipolar_plot(rig: RigResult, pair: Pair, along: np.ndarray, error: np.ndarray,
-                  height: int = 300) -> np.ndarray:
-    """BGR image of the epipolar errors against the position along the rectified image."""
-    canvas = np.full((height, _WIDTH, 3), 255, np.uint8)
-    rect = rig.rectification[pair]
-    size = rect.image_sizes[0][1 if rect.vertical else 0]
-    left, right, top, bottom = 60, _WIDTH - 20, 45, height - 30
-    lim = max(float(np.percentile(np.abs(error), 99)) * 1.2 if len(error) else 0.0, 0.05)
-    mid = (top + bottom) // 2
-    cv2.rectangle(canvas, (left, top), (right, bottom), _BLACK, 1)
-    cv2.line(canvas, (left, mid), (right, mid), _GREY, 1)
-    for x, e in zip(along, error, strict=True):
-        u = round(left + np.clip(x / max(size, 1), 0, 1) * (right - left))
-        v = round(mid - np.clip(e / lim, -1, 1) * (bottom - top) / 2)
-        cv2.circle(canvas, (u, v), 1, _RED if abs(e) >= lim else _BLUE, -1)
-    for frac, label in ((0.0, f"+{lim:.2f}"), (1.0, f"-{lim:.2f}")):
-        cv2.putText(canvas, label, (5, round(top + frac * (bottom - top)) + 5), _FONT, 0.4,
-                    _BLACK, 1, cv2.LINE_AA)
-    what = "column" if rect.vertical else "row"
-    rms = float(np.sqrt(np.mean(error ** 2))) if len(error) else float("nan")
-    _title(canvas, f"epipolar error after rectification ({what} difference, px): RMS "
-                   f"{rms:.3f} px over {len(error)} points")
-    cv2.putText(canvas, f"position along the rectified image, 0..{size} px", (left, height - 8),
-                _FONT, 0.45, _BLACK, 1, cv2.LINE_AA)
-    return canvas
+def _geometry(ax: Any, rig: RigResult, pair: Pair, board: Board) -> None:
+    """The rig from above (x right, z up the page), the pair's cameras in blue."""
+    centres, axes = {}, {}
+    for n in rig.names:
+        R, t = rig.extrinsics[rig.reference, n] if n != rig.reference else (np.eye(3),
+                                                                            np.zeros(3))
+        centres[n] = -R.T @ t               # the camera's centre in the reference frame
+        axes[n] = R.T @ np.array([0.0, 0.0, 1.0])
+    boards = _board_centres(rig, board)
+    xz = np.array([[c[0], c[2]] for c in centres.values()])
+    reach = max(float(np.ptp(xz[:, 0])), float(np.ptp(xz[:, 1])), 0.05) * 1.5
+    if len(boards):
+        ax.plot(boards[:, 0], boards[:, 2], ".", color=GREY, ms=4,
+                label="board centre, each frame used")
+    for k, n in enumerate(rig.names):
+        c, a = centres[n], axes[n]
+        colour = BLUE if n in pair else "black"
+        ax.annotate("", xy=(c[0] + reach * a[0], c[2] + reach * a[2]), xytext=(c[0], c[2]),
+                    arrowprops={"arrowstyle": "->", "color": colour, "lw": 1.5})
+        ax.plot(c[0], c[2], "o", color=colour, ms=6)
+        ax.annotate(n, (c[0], c[2]), textcoords="offset points",
+                    xytext=(-8 if k % 2 == 0 else 8, -4), ha="right" if k % 2 == 0 else "left",
+                    color=colour, fontsize=9)
+    ax.set_aspect("equal", adjustable="datalim")
+    ax.set_xlabel("x (m, reference camera's frame)")
+    ax.set_ylabel("z, forward (m)")
+    ax.legend(fontsize=7, loc="lower right")
+    ax.set_title("the rig from above", fontsize=10)
 
 
 def pair_page(rig: RigResult, pair: Pair,
               detections: Mapping[str, Sequence[Detections | None]], board: Board,
-              points: str) -> np.ndarray:
-    """The whole page of one pair (see the module docstring), BGR."""
-    half = []
-    for n in pair:
-        plot = residual_plot(rig.cameras[n])
-        scale = (_WIDTH // 2) / plot.shape[1]
-        small = cv2.resize(plot, (_WIDTH // 2, round(plot.shape[0] * scale)),
-                           interpolation=cv2.INTER_AREA)
-        cv2.putText(small, n, (12, small.shape[0] - 10), _FONT, 0.6, _BLUE, 1, cv2.LINE_AA)
-        half.append(small)
-    h = max(p.shape[0] for p in half)
-    row = np.full((h, _WIDTH, 3), 255, np.uint8)
-    row[:half[0].shape[0], :_WIDTH // 2] = half[0]
-    row[:half[1].shape[0], _WIDTH // 2:_WIDTH // 2 + half[1].shape[1]] = half[1]
+              points: str) -> Figure:
+    """The page of one rectified pair (see the module docstring)."""
+    a, b = pair
+    p = rig.pairs[pair]
+    rect = rig.rectification[pair]
+    fig = page(f"Pair {a} -> {b}: baseline {p.baseline_m:.4f} m +- "
+               f"{p.baseline_std_m * 1000:.2f} mm, rotation {p.rotation_deg:.2f} deg, "
+               f"{p.shared_frames} shared frames",
+               "Left: where the cameras are (blue: this pair). Middle: each camera's residuals "
+               "in the joint solve, magnified. Bottom right: after rectification the same "
+               "board point should land on the same row in both images; the dots are how far "
+               f"apart they land (px). Below {EPIPOLAR_GOOD_PX:g} px RMS is good for stereo "
+               "matching; a tilt or a spread growing to one side means the pair's rotation is "
+               "off, large scatter often means images that were not taken at the same instant.")
+    _geometry(fig.add_axes((0.05, 0.50, 0.27, 0.38)), rig, pair, board)
+    for k, n in enumerate(pair):
+        res = rig.cameras[n]
+        ax = image_axes(fig, res.image_size, (0.37 + k * 0.32, 0.50, 0.28, 0.38))
+        gain = residual_gain(res.residuals_px, res.image_size)
+        draw_residuals(ax, res, gain)
+        ax.set_title(f"{n}: residuals x{gain:g}, RMS {res.reprojection_rms_px:.3f} px",
+                     fontsize=10)
+        ax.tick_params(labelsize=7)
+        ax.xaxis.label.set_fontsize(8)
+        ax.yaxis.label.set_fontsize(8)
     along, error = epipolar_errors(rig, pair, detections, board, points)
-    return np.vstack([geometry_plot(rig, pair, board), row,
-                      epipolar_plot(rig, pair, along, error)])
+    ax = fig.add_axes((0.07, 0.14, 0.88, 0.27))
+    size = rect.image_sizes[0][1 if rect.vertical else 0]
+    lim = max(float(np.percentile(np.abs(error), 99.5)) * 1.2 if len(error) else 0.0, 0.05)
+    ax.plot(along, np.clip(error, -lim, lim), ".", ms=1.5, color=BLUE, rasterized=True)
+    ax.axhline(0.0, color=GREY, lw=0.8)
+    ax.set_xlim(0, size)
+    ax.set_ylim(-lim, lim)
+    what = "column" if rect.vertical else "row"
+    rms = float(np.sqrt(np.mean(error ** 2))) if len(error) else float("nan")
+    ax.set_title(f"epipolar error after rectification ({what} difference): RMS {rms:.3f} px "
+                 f"over {len(error)} points", fontsize=10, color=RED if rms > EPIPOLAR_GOOD_PX
+                 else "black")
+    ax.set_xlabel("position along the rectified image (px)")
+    ax.set_ylabel(f"{what} difference (px)")
+    return fig
 
 
-def write_pair_pages(directory: Path, rig: RigResult,
+def rig_verdict_words(rig: RigResult, board: Board | None = None,
+                      checks: Mapping[str, Mapping[str, Any]] | None = None) -> PlainVerdict:
+    """The rig's first page in words: the worst of its cameras' verdicts and of its pairs'
+    epipolar errors, what to do, each camera's and pair's figures and the rig's warnings.
+
+    Args:
+        checks: camera name -> its ``tone_curve`` and ``board_check`` dicts, if known.
+    """
+    feature = feature_term(board) if board is not None else "markers"
+    per_camera = {n: plain_verdict(rig.cameras[n], feature=feature,
+                                   board_check=(checks or {}).get(n, {}).get("board_check"))
+                  for n in rig.names}
+    level = max((v.level for v in per_camera.values()), key=LEVELS.index)
+    epi = rig.rectified_epipolar_rms_px
+    bad_pairs = [f"{a}-{b}" for (a, b), e in epi.items()
+                 if not np.isfinite(e) or e > EPIPOLAR_GOOD_PX]
+    actions = []
+    if bad_pairs:
+        level = max(level, "usable", key=LEVELS.index)
+        actions.append(f"After rectification the rows of {', '.join(bad_pairs)} differ by more "
+                       f"than {EPIPOLAR_GOOD_PX:g} px: check that the cameras take their "
+                       "pictures at the same instant (their time stamps, sync_tolerance) and "
+                       "did not move against each other during the recording.")
+    for n, v in per_camera.items():
+        actions += [f"{n}: {a}" for a in v.actions]
+    headline = {"good": "GOOD: this rig calibration can be used.",
+                "usable": "USABLE: this rig calibration works, but could be better.",
+                "poor": "POOR: do not rely on this rig calibration yet."}[level]
+    listed = [(rig.reference, n) for n in rig.names[1:]]
+    listed += [p for p in rig.consecutive_pairs if p not in listed]
+    figures = [(f"camera {n}", v.figures[0][1]) for n, v in per_camera.items()]
+    for a, b in listed:
+        p = rig.pairs[a, b]
+        text = (f"baseline {p.baseline_m:.5f} m +- {p.baseline_std_m * 1000:.3f} mm, rotation "
+                f"{p.rotation_deg:.3f} deg, {p.shared_frames} shared frames")
+        if (a, b) in epi:
+            text += f", rectified epipolar RMS {epi[a, b]:.3f} px"
+        figures.append((f"{a} -> {b}", text))
+    meaning = (f"{len(rig.names)} cameras ({', '.join(rig.names)}) solved together from "
+               f"{len(rig.frames_used)} frames; the points fit to {rig.reprojection_rms_px:.3f} "
+               "px RMS over all cameras. The pages after this one show each pair (where the "
+               "cameras are and how well their images line up after rectification) and each "
+               "camera as a single camera's report does.")
+    notes = list(rig.warnings) + [f"{n}: {w}" for n, v in per_camera.items() for w in v.notes]
+    return PlainVerdict(level, headline, meaning, tuple(actions), tuple(figures), tuple(notes))
+
+
+def write_rig_report(directory: str | Path, rig: RigResult,
                      detections: Mapping[str, Sequence[Detections | None]], board: Board,
-                     points: str) -> list[Path]:
-    """Write ``pair_<a>_<b>.png`` of each rectified pair into ``directory``."""
-    directory.mkdir(parents=True, exist_ok=True)
-    out = []
+                     points: str, *, checks: Mapping[str, Mapping[str, Any]] | None = None,
+                     progress: Callable[[str], None] | None = None) -> list[Path]:
+    """Write a rig's report.pdf and its pages' PNGs into ``directory`` (the module
+    docstring lists them; summary.json is the caller's).
+
+    Args:
+        detections: camera -> the rig's frames (index = frame, as ``calibrate_rig`` got them).
+        points: the ``points`` parameter the rig was solved with.
+        checks: camera -> ``{"tone_curve": ..., "board_check": ...}`` dicts, if known.
+        progress: told each page group as it is drawn.
+
+    Returns:
+        The files written, report.pdf first.
+    """
+    say = progress or (lambda _msg: None)
+    report = PdfReport(directory)
+    report.add(verdict_page(rig_verdict_words(rig, board, checks),
+                            f"Rig calibration report: {', '.join(rig.names)}"), "verdict.png")
     for pair in rig.rectification:
-        path = directory / f"pair_{pair[0]}_{pair[1]}.png"
-        if not cv2.imwrite(str(path), pair_page(rig, pair, detections, board, points)):
-            raise ArtcalError(f"cannot write {path}")
-        out.append(path)
-    return out
+        say(f"report: pair {pair[0]}-{pair[1]}")
+        report.add(pair_page(rig, pair, detections, board, points),
+                   f"pair_{pair[0]}_{pair[1]}.png")
+    for n in rig.names:
+        say(f"report: camera {n}")
+        cam_checks = (checks or {}).get(n, {})
+        for png, fig in calibration_pages(rig.cameras[n], title=f"camera {n}",
+                                          tone_curve=cam_checks.get("tone_curve"),
+                                          board_check=cam_checks.get("board_check"),
+                                          detections=detections[n],
+                                          board=board):
+            report.add(fig, f"{n}/{png}")
+    return report.close()
+
