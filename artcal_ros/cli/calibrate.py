@@ -58,12 +58,15 @@ from artcal_ros.cli.skipped import SkippedFrames, expand_image_paths, read_image
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate.board_check import check_board
 from artcal_ros.core.calibrate.diagnosis import BoardSearch
-from artcal_ros.core.calibrate.solve_run import detect_views, solve_summary, solve_views
+from artcal_ros.core.calibrate.solve_run import solve_summary, solve_views
 from artcal_ros.core.detect import Detector, DetectorConfig
+from artcal_ros.core.detect.frames import detect_frames
+from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import BagError, CalibrationError, ImageFormatError, ParameterError
 
 IMAGE_TYPES = ("sensor_msgs/msg/Image", "sensor_msgs/msg/CompressedImage")
 DEFAULT_TOPIC = "/camera/image_raw"
+RIG_MAX_FRAMES, RIG_BUDGET_S = 400, 40.0  # a rig's default --max-frames and --time-budget
 
 
 def add_arguments(parser: argparse.ArgumentParser) -> None:
@@ -88,12 +91,14 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
     parser.add_argument("--max-views", type=int, default=None, metavar="N",
                         help="solve from at most N diverse views (default: the max_views "
                              "parameter, 40)")
-    parser.add_argument("--max-frames", type=int, default=400, metavar="N",
+    parser.add_argument("--max-frames", type=int, default=None, metavar="N",
                         help="from a bag, detect markers in at most N frames spread evenly "
-                             "over the recording (default 400; 0 = every frame)")
-    parser.add_argument("--time-budget", type=float, default=40.0, metavar="S",
+                             "over the recording (default 0 = every frame; a rig: 400)")
+    parser.add_argument("--time-budget", type=float, default=None, metavar="S",
                         help="from a bag, space the frames so that reading and detecting "
-                             "take about S seconds (default 40; 0 = no limit)")
+                             "take about S seconds (default 0 = no limit; a rig: 40)")
+    parser.add_argument("--jobs", type=int, default=0, metavar="N",
+                        help="processes that detect the frames (default 0 = one per CPU)")
     add_board_arguments(parser)
     parser.add_argument("--k3", action="store_true",
                         help="deprecated: the same as --set calibrate.k_coefficients=3 "
@@ -122,16 +127,16 @@ def _bag_topic(topics: dict[str, str], wanted: str | None, bag: str) -> str:
 
 
 def _bag_frames(bag: str, topic: str | None, max_frames: int, budget_s: float,
-                quiet: bool, skipped: SkippedFrames,
+                bar: Progress[Any], skipped: SkippedFrames,
                 warn: Callable[[str], None]) -> Iterator[tuple[str, np.ndarray]]:
-    """Frames of the bag's image topic, spread evenly over the recording.
+    """Frames of the bag's image topic: every one, or spread evenly over the recording.
 
-    At most ``max_frames`` (0: no limit) are decoded; with a time budget the spacing
-    adapts as detection goes, so reading and detecting stay within about ``budget_s``
-    seconds whatever the detector's speed (consecutive frames at 30 fps are nearly the
-    same view anyway). Messages that do not decode or convert are skipped and counted in
-    ``skipped``; a recording broken part-way gives its frames before the break, and
-    ``warn`` is told where it broke.
+    At most ``max_frames`` (0: no limit) are decoded; with a time budget (0: none) the
+    spacing adapts as detection goes, so reading and detecting stay within about
+    ``budget_s`` seconds whatever the detector's speed. ``bar`` is given the frames to
+    come as its total (and counts the skipped ones). Messages that do not decode or
+    convert are skipped and counted in ``skipped``; a recording broken part-way gives its
+    frames before the break, and ``warn`` is told where it broke.
     """
     from artcal_ros.bag import BagReader
 
@@ -142,7 +147,7 @@ def _bag_frames(bag: str, topic: str | None, max_frames: int, budget_s: float,
         if total is None:  # count this topic's messages (cheap: no decoding)
             total = sum(1 for _ in reader.messages(name, on_damage="stop"))
         cap = total if max_frames <= 0 else min(max_frames, total)
-        bar: Progress[Any] = Progress(total=cap, label=f"detect {name}", enabled=not quiet)
+        bar.total, bar.label = cap, f"detect {name}"
         taken = 0
         next_index = 0.0
         for k, m in enumerate(reader.messages(name, on_damage="stop")):
@@ -152,30 +157,44 @@ def _bag_frames(bag: str, topic: str | None, max_frames: int, budget_s: float,
                 image = message_image(m)
             except (BagError, ImageFormatError) as e:
                 skipped.add(e)
+                bar.update()
                 next_index = k + 1  # the next message stands in for this one
                 continue
             yield f"{name}#{k}@{m.log_time_ns}", image
             taken += 1
-            bar.update()
             # Frames still affordable, spread over the messages still to come.
             left = frames_affordable(cap - taken, taken, time.monotonic() - start, budget_s)
             if left <= 0:
                 break
             next_index = k + max(1.0, (total - k - 1) / left)
-        bar.close()
         for text in dict.fromkeys(reader.warnings):  # each once, in order
             warn(text)
 
 
-def _file_frames(paths: list[str], quiet: bool,
+def _file_frames(paths: list[str], bar: Progress[Any],
                  skipped: SkippedFrames) -> Iterator[tuple[str, np.ndarray]]:
-    for path in Progress(paths, label="detect", enabled=not quiet):
+    bar.total = len(paths)
+    for path in paths:
         try:
             image = read_image_file(path)
         except ImageFormatError as e:
             skipped.add(e)
+            bar.update()
             continue
         yield path, image
+
+
+def _detect_all(frames: Iterator[tuple[str, np.ndarray]], detector: Detector, jobs: int,
+                bar: Progress[Any]) -> tuple[list[Detections], tuple[int, int]]:
+    """Every frame detected (on ``jobs`` processes, 0: one per CPU), and the image size."""
+    dets: list[Detections] = []
+    for d in detect_frames(frames, detector, workers=jobs):
+        dets.append(d)
+        bar.update()
+    bar.close()
+    if not dets:
+        raise ParameterError("no images: give image files or --bag BAG")
+    return dets, dets[0].image_size
 
 
 def _one_size(frames: Iterator[tuple[str, np.ndarray]],
@@ -212,11 +231,16 @@ def run(args: argparse.Namespace) -> int:
     params = _k3_alias(args, params_from_args(args, board_overrides(args)))
     board = Board.from_params(params)
     if args.camera or args.output_dir or args.intrinsics:
+        # a rig's frames are detected one by one: a budget by default
+        args.max_frames = RIG_MAX_FRAMES if args.max_frames is None else args.max_frames
+        args.time_budget = RIG_BUDGET_S if args.time_budget is None else args.time_budget
         return run_rig(args, params, board)
     if bool(args.images) == bool(args.bag):
         raise ParameterError("give either image files or --bag BAG (not both, not neither)")
     if args.topic and not args.bag:
         raise ParameterError("--topic needs --bag")
+    if args.jobs < 0:
+        raise ParameterError(f"--jobs {args.jobs}: must be 0 (one per CPU) or more")
     if args.max_views is not None and args.max_views < 3:
         raise ParameterError(f"--max-views {args.max_views}: must be at least 3")
     for flag, path in (("--output", args.output), ("--report", args.report)):
@@ -231,16 +255,17 @@ def run(args: argparse.Namespace) -> int:
         print(f"artcal calibrate: warning: {msg}", file=sys.stderr)
 
     skipped = SkippedFrames()
-    frames = (_bag_frames(args.bag, args.topic, args.max_frames, args.time_budget, args.quiet,
-                          skipped, warn)
+    bar: Progress[Any] = Progress(label="detect", enabled=not args.quiet)
+    frames = (_bag_frames(args.bag, args.topic, args.max_frames or 0, args.time_budget or 0.0,
+                          bar, skipped, warn)
               if args.bag
-              else _file_frames(expand_image_paths(list(args.images)), args.quiet, skipped))
+              else _file_frames(expand_image_paths(list(args.images)), bar, skipped))
     start = time.monotonic()
     detector = Detector(board, DetectorConfig.from_params(params))
     sample = FrameSample()  # a few frames, to search for what else is in view
     try:
-        dets, size = detect_views(sample.wrap(_one_size(frames, skipped)), board,
-                                  detector=detector)
+        dets, size = _detect_all(sample.wrap(_one_size(frames, skipped)), detector, args.jobs,
+                                 bar)
     except ParameterError:
         if not skipped.count:
             raise

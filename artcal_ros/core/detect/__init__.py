@@ -14,6 +14,7 @@ clipped or partly saturated, and ``grid_search`` looks for the markers of a clip
 where the board's layout puts them. The hot loops are numba
 kernels (compiled on first use and cached on disk); ``linalg`` has their small
 solves, ``workers`` the threads the model fit runs on (``ARTCAL_THREADS``, default 2).
+``frames`` detects a recording's frames on worker processes (offline, every frame).
 A chessboard goes to ``chessboard``
 (OpenCV's grid finders, ids from the squares' colours); a ChArUco board runs the marker
 pipeline, then ``charuco`` places its corners from the markers. An AprilGrid (Kalibr) runs the
@@ -26,6 +27,7 @@ Imports run one way, down these layers, never up or sideways (no cycles, also
 none inside functions); every module of the package is in one layer, and
 test/unit/test_layout.py checks both::
 
+    0  frames
     1  detector
     2  candidates   grid_search   chessboard   charuco   circles
     3  decode   edges   exposure   verify   circle_grid

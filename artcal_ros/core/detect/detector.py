@@ -42,7 +42,7 @@ from artcal_ros.core.detect.edges import EdgeFit, ProbeFit, refine_quads, same_e
 from artcal_ros.core.detect.exposure import censor_level, dark_level, is_clipped, saturates
 from artcal_ros.core.detect.grid_search import grow
 from artcal_ros.core.detect.image import to_gray, to_gray8
-from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool, known_lens
+from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool, LensPoolState, known_lens
 from artcal_ros.core.detect.patterns import inner_border_cells, outer_neighbours
 from artcal_ros.core.detect.sampling import border_is_dark
 from artcal_ros.core.detect.tone import (
@@ -50,6 +50,7 @@ from artcal_ros.core.detect.tone import (
     ToneCurve,
     ToneEstimate,
     TonePool,
+    ToneState,
     differs,
     probe_costs,
 )
@@ -268,6 +269,15 @@ class Detector:
     def reset_tone(self) -> None:
         """Forget the tone curve learnt from earlier frames (a different camera)."""
         self._tone_pool.reset()
+
+    def snapshot(self) -> tuple[LensPoolState, ToneState]:
+        """What earlier frames taught this detector (lens, tone curve), for :meth:`restore`."""
+        return self._lens_pool.snapshot(), self._tone_pool.snapshot()
+
+    def restore(self, state: tuple[LensPoolState, ToneState]) -> None:
+        """Go back to a :meth:`snapshot` (this detector's or another's of the same board)."""
+        self._lens_pool.restore(state[0])
+        self._tone_pool.restore(state[1])
 
     def _fixed_gamma(self, dtype: np.dtype) -> float:
         """The configured gamma for images of ``dtype`` (0: estimate)."""

@@ -35,8 +35,8 @@ from functools import lru_cache
 
 import numpy as np
 
-__all__ = ["GAMMA_GRID", "ToneCurve", "ToneEstimate", "TonePool", "differs", "probe_costs",
-           "sound_sides"]
+__all__ = ["GAMMA_GRID", "ToneCurve", "ToneEstimate", "TonePool", "ToneState", "differs",
+           "probe_costs", "sound_sides"]
 
 # the power laws every probe re-fits (sRGB is probed as well)
 GAMMA_GRID: tuple[float, ...] = (1.0, 1.6, 2.2, 2.8)
@@ -160,6 +160,10 @@ class ToneEstimate:
                 "not different enough)")
 
 
+# a TonePool's (costs, samples, sides, steady), see TonePool.snapshot
+ToneState = tuple[np.ndarray, int, int, int]
+
+
 class TonePool:
     """Step-model costs of the candidate tone curves, pooled over the frames of one camera.
 
@@ -208,6 +212,14 @@ class TonePool:
     def reset(self) -> None:
         """Forget every frame (a different camera)."""
         self._pooled: tuple[np.ndarray, int, int, int] = (np.zeros(len(CANDIDATES)), 0, 0, 0)
+
+    def snapshot(self) -> ToneState:
+        """The pool as it stands, for :meth:`restore` (its parts are never changed in place)."""
+        return self._pooled
+
+    def restore(self, state: ToneState) -> None:
+        """Go back to a :meth:`snapshot`."""
+        self._pooled = state
 
     def add(self, costs: np.ndarray, samples: int, sides: int) -> None:
         """Add one frame's (C,) candidate costs over ``samples`` samples of ``sides`` sides."""
