@@ -8,6 +8,7 @@ backend state, safe in the node's solve thread. Image plots use OpenCV's pixel c
 
 from __future__ import annotations
 
+import textwrap
 from collections.abc import Mapping
 
 import numpy as np
@@ -22,6 +23,7 @@ from artcal_ros.core.calibrate.quality import solution_camera, uncertainty_map
 from artcal_ros.core.calibrate.report_text import dropped_kinds
 from artcal_ros.core.calibrate.result import CalibrationResult
 from artcal_ros.core.calibrate.views import COVERAGE_GRID
+from artcal_ros.core.camera import CameraModel
 
 PAGE_INCHES = (11.0, 7.5)  # landscape, fits A4 and US letter
 BLUE, RED, GREY = "#1f5fa8", "#c8281e", "#9a9a9a"
@@ -33,8 +35,9 @@ def page(title: str, explain: str = "") -> Figure:
     """An empty report page with its title and, at the bottom, what it shows in words."""
     fig = Figure(figsize=PAGE_INCHES)
     fig.suptitle(title, fontsize=14, fontweight="bold", x=0.04, ha="left", y=0.97)
-    if explain:
-        fig.text(0.04, _EXPLAIN_Y, explain, fontsize=9, wrap=True, va="bottom", color="#333")
+    if explain:  # wrapped by characters: matplotlib's own wrapping measures every word
+        fig.text(0.04, _EXPLAIN_Y, textwrap.fill(explain, 165), fontsize=9, va="bottom",
+                 color="#333")
     return fig
 
 
@@ -57,13 +60,14 @@ def solution_of(result: CalibrationResult) -> Solution:
                     result.tvecs, result.free)
 
 
-def residual_gain(residuals_px: np.ndarray, image_size: tuple[int, int]) -> float:
-    """The magnification of the residual arrows: the 95th percentile length draws 3 % of the
-    image width, rounded down to 1, 2 or 5 times a power of ten."""
+def residual_gain(residuals_px: np.ndarray, image_size: tuple[int, int],
+                  share: float = 0.03) -> float:
+    """The magnification of the residual arrows: the 95th percentile length draws ``share``
+    of the image width, rounded down to 1, 2 or 5 times a power of ten."""
     norms = np.linalg.norm(np.asarray(residuals_px).reshape(-1, 2), axis=1)
     norms = norms[np.isfinite(norms)]
     ref = float(np.percentile(norms, 95)) if len(norms) else 1.0
-    raw = 0.03 * image_size[0] / max(ref, 1e-6)
+    raw = share * image_size[0] / max(ref, 1e-6)
     decade = 10.0 ** np.floor(np.log10(raw))
     return float(max(m for m in (1.0, 2.0, 5.0) if m * decade <= raw) * decade)
 
@@ -77,7 +81,7 @@ def draw_residuals(ax: Axes, result: CalibrationResult, gain: float) -> int:
     segments = np.stack([p, p + gain * r], axis=1)
     ax.add_collection(LineCollection(list(segments), colors=BLUE, linewidths=0.7,
                                      rasterized=True))
-    ax.plot(p[:, 0], p[:, 1], ".", ms=1.2, color="black", rasterized=True)
+    ax.plot(p[:, 0], p[:, 1], ".", ms=0.8, color="black", rasterized=True)
     if len(result.outliers_px):
         ax.plot(result.outliers_px[:, 0], result.outliers_px[:, 1], "x", color=RED, ms=5,
                 label=f"{len(result.outliers_px)} outliers left out")
@@ -188,11 +192,25 @@ def uncertainty_figure(result: CalibrationResult) -> Figure:
     im = ax.pcolormesh(xs, ys, grid, cmap="viridis", shading="nearest", rasterized=True)
     _contours(ax, xs, ys, grid, "px")
     fig.colorbar(im, ax=ax, fraction=0.04, pad=0.02, label="1-sigma (px)")
-    ax.plot(result.points_px[:, 0], result.points_px[:, 1], ",", color="white", alpha=0.3)
+    ax.plot(result.points_px[:, 0], result.points_px[:, 1], ",", color="white", alpha=0.3,
+            rasterized=True)
     ax.set_title(f"RMS {result.projection_uncertainty_rms_px:.3f} px, largest "
                  f"{result.projection_uncertainty_max_px:.3f} px (white dots: points used)",
                  fontsize=10)
     return fig
+
+
+def lens_displacement(cam: CameraModel, pixels: np.ndarray) -> np.ndarray:
+    """(N, 2) how far the lens moves each image pixel of ``pixels`` (N, 2) from where a
+    pinhole camera of the same K would image its ray: image minus pinhole position, pixels;
+    NaN where the ray cannot be found."""
+    pix = np.asarray(pixels, np.float64).reshape(-1, 2)
+    rays, ok = cam.unproject(pix)
+    K = cam.K
+    pinhole = rays[:, :2] * [K[0, 0], K[1, 1]] + [K[0, 2], K[1, 2]]
+    shift = pix - pinhole
+    shift[~ok] = np.nan
+    return shift
 
 
 def distortion_figure(result: CalibrationResult) -> Figure:
@@ -204,17 +222,12 @@ def distortion_figure(result: CalibrationResult) -> Figure:
                "the real one. Large values are normal for wide-angle lenses; they are what "
                "undistortion removes.")
     ax = image_axes(fig, result.image_size)
-    cam = solution_camera(solution_of(result), result.image_size)
     w, h = result.image_size
     xs = np.linspace(0, w - 1, 81)
     ys = np.linspace(0, h - 1, max(2, round(81 * h / w)))
     gx, gy = np.meshgrid(xs, ys)
     pix = np.stack([gx.ravel(), gy.ravel()], axis=1)
-    rays, ok = cam.unproject(pix)
-    K = result.camera_matrix
-    pinhole = (rays[:, :2] * [K[0, 0], K[1, 1]]) + [K[0, 2], K[1, 2]]
-    shift = pix - pinhole
-    shift[~ok] = np.nan
+    shift = lens_displacement(solution_camera(solution_of(result), result.image_size), pix)
     mag = np.linalg.norm(shift, axis=1).reshape(gx.shape)
     im = ax.pcolormesh(xs, ys, mag, cmap="magma", shading="nearest", rasterized=True)
     _contours(ax, xs, ys, mag, "px")
@@ -291,13 +304,14 @@ def per_view_figure(result: CalibrationResult) -> Figure:
         ax.plot(xs, np.full(len(xs), -0.04 * max(top, 1e-6)), "|", ms=9, color=colour,
                 label=f"{len(views)} left out: {kind[:40]}")
         example = views[0]
-        lines.append(f"{len(views)} x {kind}\n   e.g. #{example.view_index} "
-                     f"{example.source[-40:]}: {example.reason[:70]}")
+        lines.append(textwrap.fill(f"{len(views)} x {kind}", 52) + "\n" + textwrap.fill(
+            f"e.g. #{example.view_index} {example.source[-40:]}: {example.reason[:90]}", 52,
+            initial_indent="   ", subsequent_indent="   "))
     ax.set_ylim(-0.08 * max(top, 1e-6), max(top, 1e-6) * 1.15)
     ax.set_xlabel("picture (position in the input)")
     ax.set_ylabel("RMS error (px)")
     ax.legend(fontsize=7, loc="upper left")
     text = "\n".join(lines[:8]) if lines else "no picture was left out"
     fig.text(0.70, 0.86, "Left out, and why:\n\n" + text, fontsize=7.5, va="top",
-             family="monospace", wrap=True)
+             family="monospace")
     return fig

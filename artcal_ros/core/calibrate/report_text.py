@@ -137,8 +137,11 @@ def plain_verdict(result: CalibrationResult, *, board_check: Mapping[str, Any] |
                f"{UNCERTAINTY_OF_DIAGONAL[0] * np.hypot(*r.image_size):.2f} px is good "
                f"for this image size).")
     actions = _actions(r, board_check, feature)
+    headline = _HEADLINES[v.level]
     if v.level == "good" and not actions:
         meaning += " Nothing needs to be done."
+    elif v.level == "good":  # the figures are good, but the pictures leave something open
+        headline = "GOOD, with reservations: it can be used, but read what to do below."
     figures = (
         ("verdict", f"{v.level}: {v.reason}"),
         ("camera", f"{r.model}, {r.image_size[0]} x {r.image_size[1]} px, "
@@ -154,8 +157,7 @@ def plain_verdict(result: CalibrationResult, *, board_check: Mapping[str, Any] |
     notes = list(r.warnings)
     if board_check and board_check.get("warning"):
         notes.append(f"board check: {board_check['warning']}")
-    return PlainVerdict(v.level, _HEADLINES[v.level], meaning, tuple(actions), figures,
-                        tuple(notes))
+    return PlainVerdict(v.level, headline, meaning, tuple(actions), figures, tuple(notes))
 
 
 def refused_verdict(reason: str, *, images: int, points: int) -> PlainVerdict:

@@ -8,7 +8,8 @@ the frames used), the residual vectors of camera a and of camera b over their im
 joint solve's), and the epipolar error after rectification (for every board point both
 cameras measure in a frame, the row difference of its two rectified images, the column
 difference for a vertical pair, against its position along the rectified image); then each
-camera's pages as one camera's report has them (``<name>/*.png``).
+camera's pages as one camera's report has them, but for the first, which the rig's covers
+(``<name>/*.png``).
 """
 
 from __future__ import annotations
@@ -103,6 +104,8 @@ def _geometry(ax: Any, rig: RigResult, pair: Pair, board: Board) -> None:
     boards = _board_centres(rig, board)
     xz = np.array([[c[0], c[2]] for c in centres.values()])
     reach = max(float(np.ptp(xz[:, 0])), float(np.ptp(xz[:, 1])), 0.05) * 1.5
+    if len(boards):  # axes long enough to see beside the boards' distance
+        reach = max(reach, 0.15 * float(np.max(np.abs(boards[:, 2]))))
     if len(boards):
         ax.plot(boards[:, 0], boards[:, 2], ".", color=GREY, ms=4,
                 label="board centre, each frame used")
@@ -130,10 +133,10 @@ def pair_page(rig: RigResult, pair: Pair,
     p = rig.pairs[pair]
     rect = rig.rectification[pair]
     fig = page(f"Pair {a} -> {b}: baseline {p.baseline_m:.4f} m +- "
-               f"{p.baseline_std_m * 1000:.2f} mm, rotation {p.rotation_deg:.2f} deg, "
+               f"{p.baseline_std_m * 1000:.2g} mm, rotation {p.rotation_deg:.2f} deg, "
                f"{p.shared_frames} shared frames",
                "Left: where the cameras are (blue: this pair). Middle: each camera's residuals "
-               "in the joint solve, magnified. Bottom right: after rectification the same "
+               "in the joint solve, magnified. Bottom: after rectification the same "
                "board point should land on the same row in both images; the dots are how far "
                f"apart they land (px). Below {EPIPOLAR_GOOD_PX:g} px RMS is good for stereo "
                "matching; a tilt or a spread growing to one side means the pair's rotation is "
@@ -142,7 +145,7 @@ def pair_page(rig: RigResult, pair: Pair,
     for k, n in enumerate(pair):
         res = rig.cameras[n]
         ax = image_axes(fig, res.image_size, (0.37 + k * 0.32, 0.50, 0.28, 0.38))
-        gain = residual_gain(res.residuals_px, res.image_size)
+        gain = residual_gain(res.residuals_px, res.image_size, share=0.08)  # a small panel
         draw_residuals(ax, res, gain)
         ax.set_title(f"{n}: residuals x{gain:g}, RMS {res.reprojection_rms_px:.3f} px",
                      fontsize=10)
@@ -241,7 +244,7 @@ def write_rig_report(directory: str | Path, rig: RigResult,
     for n in rig.names:
         say(f"report: camera {n}")
         cam_checks = (checks or {}).get(n, {})
-        for png, fig in calibration_pages(rig.cameras[n], title=f"camera {n}",
+        for png, fig in calibration_pages(rig.cameras[n], title=f"camera {n}", first_page=False,
                                           tone_curve=cam_checks.get("tone_curve"),
                                           board_check=cam_checks.get("board_check"),
                                           detections=detections[n],
