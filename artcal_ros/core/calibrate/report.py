@@ -107,12 +107,12 @@ def calibration_pages(result: CalibrationResult, *, tone_curve: Mapping[str, Any
     """The report's pages of a calibration: (PNG file name, figure), in order (see the module
     docstring); ``first_page`` False leaves out the verdict page (a rig's cameras)."""
     feature = feature_term(board) if board is not None else "markers"
-    name = title or "Camera calibration report"
+    name = f"Calibration report: {title}" if title else "Camera calibration report"
     pages: list[tuple[str, Figure]] = []
     if first_page:
         verdict = plain_verdict(result, board_check=board_check, tone_curve=tone_curve,
                                 feature=feature)
-        pages.append(("verdict.png", verdict_page(verdict, name)))
+        pages.append(("verdict.png", verdict_page(verdict, name, result)))
     pages += [
         ("residuals.png", residual_figure(result)),
         ("residual_histogram.png", histogram_figure(point_kinds(result, detections, board))),

@@ -10,7 +10,14 @@ from typing import Any
 
 from matplotlib.figure import Figure
 
-from artcal_ros.core.calibrate.report_plots import BLUE, RED, page
+from artcal_ros.core.calibrate.report_plots import (
+    BLUE,
+    RED,
+    draw_coverage,
+    draw_uncertainty,
+    image_axes,
+    page,
+)
 from artcal_ros.core.calibrate.report_text import (
     PlainVerdict,
     checks_text,
@@ -21,6 +28,7 @@ from artcal_ros.core.calibrate.result import CalibrationResult
 
 LEVEL_COLOURS = {"good": "#2a8a3e", "usable": "#d08a00", "poor": RED, "refused": RED}
 _WRAP = 118  # characters per line of body text on a page
+_NARROW = 84  # the same beside the first page's maps
 
 
 def _wrapped(text: str, width: int = _WRAP, indent: str = "") -> str:
@@ -28,33 +36,58 @@ def _wrapped(text: str, width: int = _WRAP, indent: str = "") -> str:
                          subsequent_indent=" " * len(indent))
 
 
-def verdict_page(verdict: PlainVerdict, title: str) -> Figure:
+def verdict_page(verdict: PlainVerdict, title: str,
+                 result: CalibrationResult | None = None) -> Figure:
     """The first page: the verdict in large type, what it means, what to do, the key figures
-    and the solver's notes."""
+    and the solver's notes; with ``result``, small maps of the coverage and the uncertainty
+    in a column on the right."""
     fig = page(title)
     colour = LEVEL_COLOURS.get(verdict.level, "black")
-    fig.text(0.04, 0.87, verdict.headline, fontsize=20, fontweight="bold", color=colour,
+    fig.text(0.04, 0.88, verdict.headline, fontsize=18, fontweight="bold", color=colour,
              va="top")
-    y = 0.80
-    body: list[tuple[str, float, str, str]] = [(_wrapped(verdict.meaning), 11, "normal",
-                                                 "black")]
+    wrap = _WRAP if result is None else _NARROW  # the maps take the right third
+    y = 0.81
+    body: list[tuple[str, float, str, str]] = [(_wrapped(verdict.meaning, wrap), 11,
+                                                 "normal", "black")]
     if verdict.actions:
         body.append(("What to do:", 12, "bold", "black"))
-        body += [(_wrapped(a, _WRAP - 4, "-  "), 10.5, "normal", "black")
+        body += [(_wrapped(a, wrap - 4, "-  "), 10.5, "normal", "black")
                  for a in verdict.actions]
     body.append(("The figures:", 12, "bold", "black"))
-    body += [(_wrapped(f"{k}: {v}", _WRAP + 8, "   "), 9.5, "normal", "#222")
+    body += [(_wrapped(f"{k}: {v}", wrap + 8, "   "), 9.5, "normal", "#222")
              for k, v in verdict.figures]
     if verdict.notes:
         body.append(("Notes from the solver and the checks:", 12, "bold", "black"))
-        body += [(_wrapped(n, _WRAP + 8, "-  "), 9, "normal", "#444") for n in verdict.notes]
+        body += [(_wrapped(n, wrap + 8, "-  "), 9, "normal", "#444") for n in verdict.notes]
     for text, size, weight, col in body:
         if y < 0.04:
             break
         fig.text(0.04, y, text, fontsize=size, fontweight=weight, color=col, va="top")
         lines = text.count("\n") + 1
         y -= (lines * size * 1.45 + 7) / (72.0 * fig.get_figheight())
+    if result is not None:
+        _thumbnails(fig, result)
     return fig
+
+
+def _thumbnails(fig: Figure, result: CalibrationResult) -> None:
+    """The coverage and the uncertainty map, small, one above the other on the right."""
+    w, h = result.image_size
+    width = 0.27
+    height = min(width * fig.get_figwidth() / fig.get_figheight() * h / w, 0.34)
+    top = image_axes(fig, result.image_size, (0.69, 0.86 - height, width, height))
+    draw_coverage(top, result.image_size, result.points_px, dot=0.6)
+    top.set_title(f"where the points are: {100 * result.coverage:.0f}% covered\n"
+                  "(pink cells: none)", fontsize=9)
+    low = image_axes(fig, result.image_size, (0.69, 0.42 - height, width, height))
+    if draw_uncertainty(fig, low, result, colorbar=False):
+        low.set_title(f"how well the camera is known (1-sigma, px):\nRMS "
+                      f"{result.projection_uncertainty_rms_px:.3f} px; contours labelled",
+                      fontsize=9)
+    for ax in (top, low):
+        ax.tick_params(labelsize=7)
+        ax.set_xlabel("")
+        ax.set_ylabel("")
 
 
 def numbers_page(result: CalibrationResult, tone_curve: Mapping[str, Any] | None,

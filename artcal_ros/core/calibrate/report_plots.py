@@ -172,6 +172,26 @@ def _contours(ax: Axes, xs: np.ndarray, ys: np.ndarray, grid: np.ndarray, unit: 
     ax.clabel(cs, fmt=lambda v: f"{v:g} {unit}", fontsize=8)
 
 
+def draw_uncertainty(fig: Figure, ax: Axes, result: CalibrationResult, *,
+                     colorbar: bool = True) -> bool:
+    """The 1-sigma projection uncertainty map of ``result`` on ``ax`` (image axes), with
+    contours; False when the result has no covariance."""
+    cov = np.asarray(result.covariance, np.float64)
+    step = max(result.image_size) / 60.0
+    pix, sigma = (uncertainty_map(solution_of(result), result.image_size, cov, step_px=step)
+                  if cov.size and cov.shape[0] == len(result.free) else (np.zeros((0, 2)),
+                                                                          np.zeros(0)))
+    if not len(pix):
+        ax.text(0.5, 0.5, "no covariance recorded", ha="center", transform=ax.transAxes)
+        return False
+    xs, ys, grid = _grid_image(pix, sigma)
+    im = ax.pcolormesh(xs, ys, grid, cmap="viridis", shading="nearest", rasterized=True)
+    _contours(ax, xs, ys, grid, "px")
+    if colorbar:
+        fig.colorbar(im, ax=ax, fraction=0.04, pad=0.02, label="1-sigma (px)")
+    return True
+
+
 def uncertainty_figure(result: CalibrationResult) -> Figure:
     """The 1-sigma projection uncertainty over the image, colour with contours."""
     fig = page("Projection uncertainty over the image",
@@ -180,23 +200,12 @@ def uncertainty_figure(result: CalibrationResult) -> Figure:
                "good; where it is large, add pictures with the board in that part of the "
                "image, tilted.")
     ax = image_axes(fig, result.image_size)
-    cov = np.asarray(result.covariance, np.float64)
-    step = max(result.image_size) / 60.0
-    pix, sigma = (uncertainty_map(solution_of(result), result.image_size, cov, step_px=step)
-                  if cov.size and cov.shape[0] == len(result.free) else (np.zeros((0, 2)),
-                                                                          np.zeros(0)))
-    if not len(pix):
-        ax.text(0.5, 0.5, "no covariance recorded", ha="center", transform=ax.transAxes)
-        return fig
-    xs, ys, grid = _grid_image(pix, sigma)
-    im = ax.pcolormesh(xs, ys, grid, cmap="viridis", shading="nearest", rasterized=True)
-    _contours(ax, xs, ys, grid, "px")
-    fig.colorbar(im, ax=ax, fraction=0.04, pad=0.02, label="1-sigma (px)")
-    ax.plot(result.points_px[:, 0], result.points_px[:, 1], ",", color="white", alpha=0.3,
-            rasterized=True)
-    ax.set_title(f"RMS {result.projection_uncertainty_rms_px:.3f} px, largest "
-                 f"{result.projection_uncertainty_max_px:.3f} px (white dots: points used)",
-                 fontsize=10)
+    if draw_uncertainty(fig, ax, result):
+        ax.plot(result.points_px[:, 0], result.points_px[:, 1], ",", color="white",
+                alpha=0.3, rasterized=True)
+        ax.set_title(f"RMS {result.projection_uncertainty_rms_px:.3f} px, largest "
+                     f"{result.projection_uncertainty_max_px:.3f} px (white dots: points used)",
+                     fontsize=10)
     return fig
 
 
@@ -245,6 +254,30 @@ def distortion_figure(result: CalibrationResult) -> Figure:
     return fig
 
 
+def draw_coverage(ax: Axes, image_size: tuple[int, int], points_px: np.ndarray,
+                  outliers_px: np.ndarray | None = None, *, dot: float = 1.5) -> int:
+    """Points over the image (image axes) on the 8 x 6 coverage grid, each cell shaded by how
+    many it holds, empty ones pink; returns the finite points drawn."""
+    w, h = image_size
+    gx, gy = COVERAGE_GRID
+    given = np.asarray(points_px, np.float64).reshape(-1, 2)
+    pts = given[np.all(np.isfinite(given), axis=1)]
+    counts = coverage_cells_of(image_size, pts)
+    top = max(float(counts.max()), 1.0)
+    for j in range(gy):
+        for i in range(gx):
+            c = counts[j, i]
+            colour = "#ffd2d2" if c == 0 else (1 - 0.35 * c / top, 1.0, 1 - 0.35 * c / top)
+            ax.add_patch(Rectangle((i * w / gx - 0.5, j * h / gy - 0.5), w / gx, h / gy,
+                                   facecolor=colour, edgecolor=GREY, lw=0.6, zorder=0))
+    ax.plot(pts[:, 0], pts[:, 1], ".", ms=dot, color=BLUE, zorder=2, rasterized=True)
+    if outliers_px is not None and len(outliers_px):
+        ax.plot(outliers_px[:, 0], outliers_px[:, 1], "x", ms=4, color=RED, zorder=3,
+                label=f"{len(outliers_px)} outliers left out")
+        ax.legend(loc="upper right", fontsize=8)
+    return len(pts)
+
+
 def coverage_figure(image_size: tuple[int, int], points_px: np.ndarray, title: str,
                     outliers_px: np.ndarray | None = None) -> Figure:
     """Every point over the image and the 8 x 6 coverage grid shaded by how many points each
@@ -254,30 +287,24 @@ def coverage_figure(image_size: tuple[int, int], points_px: np.ndarray, title: s
                "by how many points they hold; pink cells hold none, so the lens there is "
                "guessed from elsewhere. Move the board so that pink cells fill.")
     ax = image_axes(fig, image_size)
+    n = draw_coverage(ax, image_size, points_px, outliers_px)
+    covered = float(np.mean(coverage_cells_of(image_size, points_px) > 0))
+    gx, gy = COVERAGE_GRID
+    ax.set_title(f"{n} points; {100 * covered:.0f}% of the {gx} x {gy} grid covered",
+                 fontsize=10)
+    return fig
+
+
+def coverage_cells_of(image_size: tuple[int, int], points_px: np.ndarray) -> np.ndarray:
+    """(gy, gx) points in each cell of the coverage grid."""
     w, h = image_size
     gx, gy = COVERAGE_GRID
     given = np.asarray(points_px, np.float64).reshape(-1, 2)
     pts = given[np.all(np.isfinite(given), axis=1)]
-    cx = np.clip((pts[:, 0] / w * gx).astype(int), 0, gx - 1)
-    cy = np.clip((pts[:, 1] / h * gy).astype(int), 0, gy - 1)
     counts = np.zeros((gy, gx))
-    np.add.at(counts, (cy, cx), 1)
-    top = max(float(counts.max()), 1.0)
-    for j in range(gy):
-        for i in range(gx):
-            c = counts[j, i]
-            colour = "#ffd2d2" if c == 0 else (1 - 0.35 * c / top, 1.0, 1 - 0.35 * c / top)
-            ax.add_patch(Rectangle((i * w / gx - 0.5, j * h / gy - 0.5), w / gx, h / gy,
-                                   facecolor=colour, edgecolor=GREY, lw=0.6, zorder=0))
-    ax.plot(pts[:, 0], pts[:, 1], ".", ms=1.5, color=BLUE, zorder=2, rasterized=True)
-    if outliers_px is not None and len(outliers_px):
-        ax.plot(outliers_px[:, 0], outliers_px[:, 1], "x", ms=4, color=RED, zorder=3,
-                label=f"{len(outliers_px)} outliers left out")
-        ax.legend(loc="upper right", fontsize=8)
-    covered = float(np.mean(counts > 0))
-    ax.set_title(f"{len(pts)} points; {100 * covered:.0f}% of the {gx} x {gy} grid covered",
-                 fontsize=10)
-    return fig
+    np.add.at(counts, (np.clip((pts[:, 1] / h * gy).astype(int), 0, gy - 1),
+                       np.clip((pts[:, 0] / w * gx).astype(int), 0, gx - 1)), 1)
+    return counts
 
 
 def per_view_figure(result: CalibrationResult) -> Figure:

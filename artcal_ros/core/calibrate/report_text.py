@@ -32,8 +32,8 @@ __all__ = ["PlainVerdict", "checks_text", "dropped_kinds", "intrinsics_rows", "p
 # headline of each verdict level, in a user's words
 _HEADLINES = {
     "good": "GOOD: this calibration can be used.",
-    "usable": "USABLE: this calibration works, but could be better.",
-    "poor": "POOR: do not rely on this calibration yet.",
+    "usable": "USABLE: it works, but could be better.",
+    "poor": "POOR: do not rely on it yet.",
 }
 # below this share of the 8 x 6 image grid holding points, the image edges are guessed
 _COVERAGE_ADVICE = 0.75
@@ -141,7 +141,7 @@ def plain_verdict(result: CalibrationResult, *, board_check: Mapping[str, Any] |
     if v.level == "good" and not actions:
         meaning += " Nothing needs to be done."
     elif v.level == "good":  # the figures are good, but the pictures leave something open
-        headline = "GOOD, with reservations: it can be used, but read what to do below."
+        headline = "GOOD, with reservations: see what to do."
     figures = (
         ("verdict", f"{v.level}: {v.reason}"),
         ("camera", f"{r.model}, {r.image_size[0]} x {r.image_size[1]} px, "

@@ -196,8 +196,8 @@ def rig_verdict_words(rig: RigResult, board: Board | None = None,
     for n, v in per_camera.items():
         actions += [f"{n}: {a}" for a in v.actions]
     headline = {"good": "GOOD: this rig calibration can be used.",
-                "usable": "USABLE: this rig calibration works, but could be better.",
-                "poor": "POOR: do not rely on this rig calibration yet."}[level]
+                "usable": "USABLE: it works, but could be better.",
+                "poor": "POOR: do not rely on it yet."}[level]
     listed = [(rig.reference, n) for n in rig.names[1:]]
     listed += [p for p in rig.consecutive_pairs if p not in listed]
     figures = [(f"camera {n}", v.figures[0][1]) for n, v in per_camera.items()]
