@@ -36,7 +36,7 @@ def page(title: str, explain: str = "") -> Figure:
     fig = Figure(figsize=PAGE_INCHES)
     fig.suptitle(title, fontsize=14, fontweight="bold", x=0.04, ha="left", y=0.97)
     if explain:  # wrapped by characters: matplotlib's own wrapping measures every word
-        fig.text(0.04, _EXPLAIN_Y, textwrap.fill(explain, 165), fontsize=9, va="bottom",
+        fig.text(0.04, _EXPLAIN_Y, textwrap.fill(explain, 150), fontsize=9, va="bottom",
                  color="#333")
     return fig
 
@@ -238,19 +238,31 @@ def distortion_figure(result: CalibrationResult) -> Figure:
     pix = np.stack([gx.ravel(), gy.ravel()], axis=1)
     shift = lens_displacement(solution_camera(solution_of(result), result.image_size), pix)
     mag = np.linalg.norm(shift, axis=1).reshape(gx.shape)
-    im = ax.pcolormesh(xs, ys, mag, cmap="magma", shading="nearest", rasterized=True)
-    _contours(ax, xs, ys, mag, "px")
-    fig.colorbar(im, ax=ax, fraction=0.04, pad=0.02, label="displacement (px)")
+    finite = mag[np.isfinite(mag)]
+    # a fisheye's displacement from the pinhole image grows without bound towards 90 deg:
+    # the colours span the inner 95 % of the image so the rest stays readable
+    top = float(np.percentile(finite, 95)) if len(finite) else 1.0
+    clipped = bool(len(finite)) and float(finite.max()) > 1.5 * top
+    im = ax.pcolormesh(xs, ys, mag, cmap="magma", shading="nearest", rasterized=True,
+                       vmin=0.0, vmax=top if clipped else None)
+    _contours(ax, xs, ys, np.where(mag <= top, mag, np.nan) if clipped else mag, "px")
+    fig.colorbar(im, ax=ax, fraction=0.04, pad=0.02, extend="max" if clipped else "neither",
+                 label="displacement (px)")
     sel = (slice(None, None, 8), slice(None, None, 8))
     sx, sy = shift[:, 0].reshape(gx.shape)[sel], shift[:, 1].reshape(gx.shape)[sel]
-    biggest = float(np.nanmax(np.hypot(sx, sy))) if np.isfinite(sx).any() else 0.0
-    gain = 1.0 if biggest >= 0.06 * w else _round_down(0.06 * w / max(biggest, 1e-6))
-    ax.quiver(gx[sel] - gain * sx, gy[sel] - gain * sy, gain * sx, gain * sy, angles="xy",
-              scale_units="xy", scale=1.0, color="#49c0ff", width=0.0025)
-    worst = float(np.nanmax(mag)) if np.isfinite(mag).any() else float("nan")
-    ax.set_title(f"largest displacement {worst:.1f} px" + (
-        f" (arrows magnified {gain:g} times)" if gain != 1.0 else " (arrows to scale)"),
-        fontsize=10)
+    lengths = np.hypot(sx, sy)
+    ref = float(np.nanmedian(lengths)) if np.isfinite(lengths).any() else 0.0
+    # arrows to scale unless that makes the median one shorter than 3 % or longer than 8 %
+    # of the image width
+    gain = 1.0 if 0.03 * w <= ref <= 0.08 * w else _round_down(0.06 * w / max(ref, 1e-6))
+    keep = lengths * gain <= 0.15 * w  # the few longer ones would cross the page
+    ax.quiver(gx[sel][keep] - gain * sx[keep], gy[sel][keep] - gain * sy[keep],
+              gain * sx[keep], gain * sy[keep], angles="xy", scale_units="xy", scale=1.0,
+              color="#49c0ff", width=0.0025)
+    worst = float(finite.max()) if len(finite) else float("nan")
+    scale = (" (arrows to scale)" if gain == 1.0 else f" (arrows magnified {gain:g} times)"
+             if gain > 1.0 else f" (arrows shrunk to {gain:g} of their length)")
+    ax.set_title(f"largest displacement {worst:.1f} px" + scale, fontsize=10)
     return fig
 
 
