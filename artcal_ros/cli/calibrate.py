@@ -294,6 +294,7 @@ def run(args: argparse.Namespace) -> int:
     if check.warning:
         warn(f"board check: {check.warning}")
     if args.report:
+        say(f"writing the report into {args.report} (report.pdf and its pages as PNG)")
         write_report(Path(args.report), run.result, dets, board,
                      {"tone_curve": tone.as_dict(), "board_check": check.as_dict(),
                       "board_found": search.as_dict()})
