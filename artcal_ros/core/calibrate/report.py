@@ -51,7 +51,7 @@ from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError
 
 __all__ = ["PNG_DPI", "PdfReport", "calibration_pages", "point_kinds", "write_plots",
-           "write_refused_report", "write_report"]
+           "write_refused_report", "write_report", "write_summary"]
 
 PNG_DPI = 100  # an 11 x 7.5 inch page is 1100 x 750 px
 _KIND_NAMES = {"chessboard": "chessboard corners", "charuco": "ChArUco corners",
@@ -178,7 +178,8 @@ class PdfReport:
         return self.written
 
 
-def _write_summary(directory: Path, summary: Mapping[str, Any]) -> Path:
+def write_summary(directory: Path, summary: Mapping[str, Any]) -> Path:
+    """``directory``/summary.json, written whole."""
     return _replace_write(directory / "summary.json",
                           (json.dumps(summary, indent=1) + "\n").encode())
 
@@ -225,7 +226,7 @@ def write_report(directory: str | Path, result: CalibrationResult, *,
                                       detections=detections, board=board, title=title):
         report.add(fig, png)
     written = report.close()
-    return [*written, _write_summary(out, summary)]
+    return [*written, write_summary(out, summary)]
 
 
 def write_plots(directory: str | Path, result: CalibrationResult) -> list[Path]:
@@ -263,5 +264,5 @@ def write_refused_report(directory: str | Path, reason: str, image_size: tuple[i
                                                 "pictures (no calibration)"), "coverage.png")
     written = report.close()
     if summary is not None:
-        written.append(_write_summary(out, summary))
+        written.append(write_summary(out, summary))
     return written

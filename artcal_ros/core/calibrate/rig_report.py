@@ -24,7 +24,7 @@ from matplotlib.figure import Figure
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate.rectify import rectified_points
-from artcal_ros.core.calibrate.report import PdfReport, calibration_pages
+from artcal_ros.core.calibrate.report import PdfReport, calibration_pages, write_summary
 from artcal_ros.core.calibrate.report_pages import verdict_page
 from artcal_ros.core.calibrate.report_plots import (
     BLUE,
@@ -220,14 +220,17 @@ def rig_verdict_words(rig: RigResult, board: Board | None = None,
 def write_rig_report(directory: str | Path, rig: RigResult,
                      detections: Mapping[str, Sequence[Detections | None]], board: Board,
                      points: str, *, checks: Mapping[str, Mapping[str, Any]] | None = None,
+                     summary: Mapping[str, Any] | None = None,
                      progress: Callable[[str], None] | None = None) -> list[Path]:
     """Write a rig's report.pdf and its pages' PNGs into ``directory`` (the module
-    docstring lists them; summary.json is the caller's).
+    docstring lists them) and, given, ``summary`` as summary.json.
 
     Args:
         detections: camera -> the rig's frames (index = frame, as ``calibrate_rig`` got them).
         points: the ``points`` parameter the rig was solved with.
         checks: camera -> ``{"tone_curve": ..., "board_check": ...}`` dicts, if known.
+        summary: the summary.json content (``rig.to_summary_dict()`` and what the caller
+            adds); None writes none.
         progress: told each page group as it is drawn.
 
     Returns:
@@ -250,5 +253,8 @@ def write_rig_report(directory: str | Path, rig: RigResult,
                                           detections=detections[n],
                                           board=board):
             report.add(fig, f"{n}/{png}")
-    return report.close()
+    written = report.close()
+    if summary is not None:
+        written.append(write_summary(Path(directory).expanduser(), summary))
+    return written
 
