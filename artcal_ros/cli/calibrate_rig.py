@@ -193,16 +193,24 @@ def write_report(directory: Path, rig: RigResult, frames: RigFrames, board: Boar
 
 
 def _refused_report(directory: Path, reason: str, frames: RigFrames) -> None:
+    """summary.json with the reason, and report.pdf: the reason in words and each camera's
+    coverage of the points it detected."""
+    from artcal_ros.core.calibrate.report import write_refused_report
+
     seen = {n: sum(1 for d in frames.detections[n] if d is not None and len(d.ids)
                    + len(d.point_ids)) for n in frames.names}
-    try:
-        directory.mkdir(parents=True, exist_ok=True)
-        (directory / "summary.json").write_text(json.dumps(
-            {"success": False, "reason": reason, "camera_names": list(frames.names),
-             "frames": len(frames.detections[frames.names[0]]), "frames_seen": seen,
-             "pairing": frames.note, "warnings": [reason]}, indent=1) + "\n")
-    except OSError as e:
-        raise ArtcalError(f"cannot write the report into {directory}: {e.strerror}") from None
+    points = {n: np.concatenate([np.asarray(d.points_px if len(d.point_ids) else d.centers_px,
+                                            np.float64).reshape(-1, 2)
+                                 for d in frames.detections[n] if d is not None] or
+                                [np.zeros((0, 2))]) for n in frames.names}
+    first, *others = frames.names
+    write_refused_report(
+        directory, reason, frames.sizes[first], points[first],
+        images=len(frames.detections[first]), title=first,
+        more_cameras={n: (frames.sizes[n], points[n]) for n in others},
+        summary={"success": False, "reason": reason, "camera_names": list(frames.names),
+                 "frames": len(frames.detections[first]), "frames_seen": seen,
+                 "pairing": frames.note, "warnings": [reason]})
 
 
 def rig_text(rig: RigResult, frames: RigFrames) -> str:

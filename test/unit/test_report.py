@@ -151,7 +151,7 @@ def test_a_refused_set_gets_the_reason_and_the_coverage(tmp_path: Path) -> None:
                                          "summary.json"]
     assert pdf_pages(tmp_path / "report.pdf") == 2
     words = refused_verdict(reason, images=4, points=300)
-    assert words.level == "refused" and reason in words.text()
+    assert words.level == "refused" and words.meaning.endswith(f"Why: {reason}")
     assert "4 read, 300 board points found" in words.text()
     for name in ("verdict.png", "coverage.png"):
         image = cv2.imread(str(tmp_path / name))
@@ -206,3 +206,17 @@ def test_cli_report_of_rendered_frames(tmp_path: Path) -> None:
                  str(refused), "--quiet"]) == 1
     assert pdf_pages(refused / "report.pdf") == 2
     assert sorted(p.name for p in refused.glob("*.png")) == ["coverage.png", "verdict.png"]
+
+
+def test_a_refused_rig_has_each_cameras_coverage(tmp_path: Path) -> None:
+    rng = np.random.default_rng(2)
+    left = rng.uniform([0, 0], [640, 480], (200, 2))
+    wall = np.zeros((0, 2))  # a camera that saw nothing
+    written = write_refused_report(tmp_path, "camera wall is not connected to the rig",
+                                   (640, 480), left, images=10, title="left",
+                                   more_cameras={"wall": ((1280, 720), wall)})
+    assert [p.name for p in written] == ["report.pdf", "verdict.png", "coverage.png",
+                                         "coverage_wall.png"]
+    assert pdf_pages(tmp_path / "report.pdf") == 3
+    wall_page = cv2.imread(str(tmp_path / "coverage_wall.png"))
+    assert wall_page is not None and wall_page.shape == (750, 1100, 3)

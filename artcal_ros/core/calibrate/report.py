@@ -244,7 +244,9 @@ def write_plots(directory: str | Path, result: CalibrationResult) -> list[Path]:
 def write_refused_report(directory: str | Path, reason: str, image_size: tuple[int, int],
                          points_px: np.ndarray, *, images: int,
                          summary: Mapping[str, Any] | None = None,
-                         title: str = "") -> list[Path]:
+                         title: str = "",
+                         more_cameras: Mapping[str, tuple[tuple[int, int], np.ndarray]]
+                         | None = None) -> list[Path]:
     """The report of a set that gave no calibration: report.pdf with the reason in words and
     the coverage of the points detected, ``verdict.png``, ``coverage.png`` and (given)
     ``summary`` as summary.json.
@@ -253,15 +255,26 @@ def write_refused_report(directory: str | Path, reason: str, image_size: tuple[i
         reason: why there is no calibration.
         image_size: (width, height), pixels.
         points_px: (P, 2) every board point detected, pixels.
-        images: how many images were read.
+        images: how many images were read (a rig: frames).
+        title: the first camera's name for a rig (its coverage page then says so).
+        more_cameras: a rig's other cameras: name -> (image size, points (P, 2)), each a
+            coverage page and ``coverage_<name>.png``.
     """
     out = Path(directory).expanduser()
-    pts = np.asarray(points_px, np.float64).reshape(-1, 2)
+    cameras = {title: (image_size, points_px), **(more_cameras or {})}
+    counted = {n: np.asarray(p, np.float64).reshape(-1, 2) for n, (_, p) in cameras.items()}
     report = PdfReport(out)
-    report.add(verdict_page(refused_verdict(reason, images=images, points=len(pts)),
-                            title or "Camera calibration report"), "verdict.png")
-    report.add(coverage_figure(image_size, pts, f"Coverage: every point detected in {images} "
-                                                "pictures (no calibration)"), "coverage.png")
+    heading = (f"Calibration report: {', '.join(cameras)}" if title
+               else "Camera calibration report")
+    report.add(verdict_page(refused_verdict(reason, images=images,
+                                            points=sum(len(p) for p in counted.values())),
+                            heading), "verdict.png")
+    for k, (name, (size, _)) in enumerate(cameras.items()):
+        whose = f" by {name}" if more_cameras else ""
+        report.add(coverage_figure(size, counted[name],
+                                   f"Coverage: every point detected{whose} in {images} "
+                                   "pictures (no calibration)"),
+                   "coverage.png" if k == 0 else f"coverage_{name}.png")
     written = report.close()
     if summary is not None:
         written.append(write_summary(out, summary))

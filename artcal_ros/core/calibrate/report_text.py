@@ -169,13 +169,13 @@ def refused_verdict(reason: str, *, images: int, points: int) -> PlainVerdict:
     """
     return PlainVerdict(
         "refused", "NO CALIBRATION: these pictures cannot give one.",
-        "The pictures were read and the board searched for, but they do not hold what a "
-        "calibration needs. The reason, as the solver gives it, is below; the coverage page "
-        "shows where in the image the board's points were found.",
-        ("Read the reason below: it says what kind of pictures to add.",
+        f"The pictures were read and the board searched for, but they do not hold what a "
+        f"calibration needs. Why: {reason}",
+        ("Add the pictures the reason above asks for (the coverage page shows where in the "
+         "image the board's points were found so far).",
          "In general: 15-20 sharp pictures of the whole board, tilted in different "
          "directions, covering the whole image, corners included."),
-        (("reason", reason), ("pictures", f"{images} read, {points} board points found")),
+        (("pictures", f"{images} read, {points} board points found"),),
         ())
 
 
