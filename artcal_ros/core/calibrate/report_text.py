@@ -87,10 +87,14 @@ def _actions(result: CalibrationResult, board_check: Mapping[str, Any] | None,
         out.append("Take more pictures: the set was solved only because --accept-weak was "
                    f"given, although {r.weak_reason.split(';')[0]}.")
     if not np.isfinite(r.reprojection_rms_px) or r.reprojection_rms_px > RMS_PX[0]:
+        lens = {"plumb_bob": "; for a wide-angle lens try camera_model rational_polynomial "
+                             "or equidistant",
+                "rational_polynomial": "; for a fisheye lens try camera_model equidistant",
+                "equidistant": "; for a lens that is not a fisheye try camera_model "
+                               "rational_polynomial"}.get(r.model, "")
         out.append("The board's points do not fit the camera well. Check the board settings "
                    "(type, size, marker length) against the printed board, that the board is "
-                   "flat and the pictures are sharp (hold still, more light); for a wide-angle "
-                   "lens try camera_model rational_polynomial or equidistant.")
+                   f"flat and the pictures are sharp (hold still, more light){lens}.")
     diagonal = float(np.hypot(*r.image_size))
     unc = r.projection_uncertainty_rms_px
     if not np.isfinite(unc) or unc / diagonal > UNCERTAINTY_OF_DIAGONAL[0] \
