@@ -81,9 +81,10 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="calibration file to write (default: the output_file parameter, "
                              "else ~/.ros/camera_info/<camera_name>.yaml)")
     parser.add_argument("--report", metavar="DIR",
-                        help="also write summary.json, detections.json and PNG plots into "
-                             "DIR (a refused set too: the reason, the detections per image "
-                             "and the coverage of the points found)")
+                        help="also write report.pdf (its first page says whether the result "
+                             "is good and what to do if not), each page as PNG, summary.json "
+                             "and detections.json into DIR (a refused set too: the reason, "
+                             "the detections per image and the coverage of the points found)")
     parser.add_argument("--accept-weak", action="store_true",
                         help="solve a set the view checks refuse (fewer than 3 usable views, "
                              "all at one tilt) when a solve is possible at all; the first "
