@@ -98,8 +98,9 @@ def holdable_pose(camera_matrix: np.ndarray, board: Board, image_size: tuple[int
         image_size: (width, height), pixels.
     """
     R = _tilt_rotation(tilt_direction_deg, tilt_deg, roll_deg)
-    return _place(np.asarray(camera_matrix, dtype=np.float64), board, image_size, anchor,
-                  fill, R)
+    T = _place(np.asarray(camera_matrix, dtype=np.float64), board, image_size,
+               np.array([anchor], np.float64), np.array([fill], np.float64), R[None])[0]
+    return cv2.Rodrigues(R)[0].ravel(), T - R @ _centre(board)
 
 
 def _tilt_rotation(direction_deg: float, tilt_deg: float, roll_deg: float = 0.0) -> np.ndarray:
@@ -112,30 +113,30 @@ def _tilt_rotation(direction_deg: float, tilt_deg: float, roll_deg: float = 0.0)
                       @ cv2.Rodrigues(np.array([0.0, 0.0, math.radians(roll_deg)]))[0])
 
 
-def _place(K: np.ndarray, board: Board, image_size: tuple[int, int],
-           anchor: tuple[float, float], fill: float,
-           R: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-    """:func:`holdable_pose` for a given orientation R_cam_board (3, 3)."""
+def _place(K: np.ndarray, board: Board, image_size: tuple[int, int], anchors: np.ndarray,
+           fills: np.ndarray, R: np.ndarray) -> np.ndarray:
+    """(C, 3) camera-frame position of the board's centre for C placements (anchors (C, 2),
+    fills (C,), orientations R_cam_board (C, 3, 3)), as :func:`holdable_pose` places it."""
     w, h = image_size
     fx, fy, cx, cy = K[0, 0], K[1, 1], K[0, 2], K[1, 2]
     bw, bh = board.size_m
     x0, y0, x1, y1 = board.extent_m
-    centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2, 0.0])
-    depth = math.sqrt(fx * fy * bw * bh / (fill * w * h))
-    corners = np.array([[x0, y0, 0.0], [x1, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0]]) - centre
-    T = np.array([0.0, 0.0, depth])
+    corners = np.array([[x0, y0, 0.0], [x1, y0, 0.0], [x1, y1, 0.0], [x0, y1, 0.0]])
+    corners = corners - _centre(board)
+    T = np.zeros((len(fills), 3))
+    T[:, 2] = np.sqrt(fx * fy * bw * bh / (fills * w * h))
+    rotated = np.einsum("cij,kj->cki", R, corners)  # (C, 4, 3)
     for _ in range(2):  # a lateral shift changes the perspective a little: place twice
-        cam = corners @ R.T + T
-        u = fx * cam[:, 0] / cam[:, 2] + cx
-        v = fy * cam[:, 1] / cam[:, 2] + cy
-        du = _shift(float(u.min()), float(u.max()), anchor[0], w)
-        dv = _shift(float(v.min()), float(v.max()), anchor[1], h)
-        T = T + np.array([du * T[2] / fx, dv * T[2] / fy, 0.0])
-    rvec = cv2.Rodrigues(R)[0].ravel()
-    return rvec, T - R @ centre
+        cam = rotated + T[:, None, :]
+        u = fx * cam[..., 0] / cam[..., 2] + cx
+        v = fy * cam[..., 1] / cam[..., 2] + cy
+        du = _shift(u.min(axis=1), u.max(axis=1), anchors[:, 0], w)
+        dv = _shift(v.min(axis=1), v.max(axis=1), anchors[:, 1], h)
+        T = T + np.stack([du * T[:, 2] / fx, dv * T[:, 2] / fy, np.zeros(len(T))], axis=1)
+    return T
 
 
-def _shift(lo: float, hi: float, anchor: float, size: int) -> float:
+def _shift(lo: np.ndarray, hi: np.ndarray, anchor: np.ndarray, size: int) -> np.ndarray:
     """Pixels to move [lo, hi] so it touches the image side ``anchor`` selects (0 start,
     1 end, between: proportionally), a small margin inside."""
     m = MARGIN * size
@@ -188,12 +189,12 @@ def next_pose(views: Sequence[ViewPoints], sol: Solution, board: Board,
     r_max = _field_radius(cam)
     typical = _typical_depth(views, sol, board)
     cands = _candidates(sol, board, image_size)
-    fills = _visible_fills(board, [(c[4], c[5]) for c in cands], cam, r_max)
-    cands = [c for c, f in zip(cands, fills, strict=True) if MIN_FILL <= f <= MAX_FILL]
-    infos, ok = _views_information(points, [(c[4], c[5]) for c in cands], sol, groups,
-                                   image_size, r_max)
-    kept = [c for c, good in zip(cands, ok, strict=True) if good]
-    if not kept:
+    fills = _visible_fills(board, cands.R, cands.T, cam, r_max)
+    cands = cands.subset((fills >= MIN_FILL) & (fills <= MAX_FILL))
+    infos, ok = _views_information(points, _centre(board), cands, sol, groups, image_size,
+                                   r_max)
+    cands = cands.subset(ok)
+    if len(cands.T) == 0:
         return None
     total = info[None] + infos[ok] * weight
     try:
@@ -202,7 +203,9 @@ def next_pose(views: Sequence[ViewPoints], sol: Solution, board: Board,
         return None
     rms = np.sqrt(np.maximum(np.einsum("cij,ji->c", covs, grid_M) / n_grid, 0.0))
     k = int(np.argmin(rms))
-    anchor, _fill, direction, tilt, rvec, tvec = kept[k]
+    anchor = (float(cands.anchors[k, 0]), float(cands.anchors[k, 1]))
+    direction, tilt = int(cands.direction[k]), float(cands.tilt_deg[k])
+    rvec, tvec = cands.rvecs[k].copy(), cands.T[k] - cands.R[k] @ _centre(board)
     after = float(rms[k])
     depth = float((cv2.Rodrigues(rvec)[0] @ _centre(board) + tvec)[2])
     distance = ("same distance" if not math.isfinite(typical)
@@ -221,18 +224,39 @@ def _centre(board: Board) -> np.ndarray:
     return np.array([(x0 + x1) / 2, (y0 + y1) / 2, 0.0])
 
 
-def _candidates(sol: Solution, board: Board, image_size: tuple[int, int]
-                ) -> list[tuple[tuple[float, float], float, int, float, np.ndarray, np.ndarray]]:
-    """Every candidate: (anchor, fill, tilt direction index, tilt deg, rvec, tvec)."""
-    out = []
+@dataclass(frozen=True)
+class _Candidates:
+    """C candidate poses: anchors (C, 2) image fractions, fills (C,), tilt direction index
+    (C,) into TILT_DIRECTIONS and tilt (C,) deg, R_cam_board (C, 3, 3) and its Rodrigues
+    vector (C, 3), the board centre's camera-frame position T (C, 3) metres."""
+
+    anchors: np.ndarray
+    fills: np.ndarray
+    direction: np.ndarray
+    tilt_deg: np.ndarray
+    R: np.ndarray
+    rvecs: np.ndarray
+    T: np.ndarray
+
+    def subset(self, keep: np.ndarray) -> _Candidates:
+        return _Candidates(self.anchors[keep], self.fills[keep], self.direction[keep],
+                           self.tilt_deg[keep], self.R[keep], self.rvecs[keep], self.T[keep])
+
+
+def _candidates(sol: Solution, board: Board, image_size: tuple[int, int]) -> _Candidates:
+    """Every candidate pose: each region, fill and tilt (facing, or each angle of
+    TILTS_DEG towards each of the TILT_DIRECTIONS)."""
     tilts = [(0, 0.0)] + [(k, t) for t in TILTS_DEG for k in range(len(TILT_DIRECTIONS))]
-    rotations = [_tilt_rotation(45.0 * k, t) for k, t in tilts]
-    for anchor in REGIONS:
-        for fill in FILLS:
-            for (k, t), R in zip(tilts, rotations, strict=True):
-                rvec, tvec = _place(sol.camera_matrix, board, image_size, anchor, fill, R)
-                out.append((anchor, fill, k, t, rvec, tvec))
-    return out
+    rotations = np.stack([_tilt_rotation(45.0 * k, t) for k, t in tilts])
+    rvecs = np.stack([cv2.Rodrigues(R)[0].ravel() for R in rotations])
+    combos = [(a, f, i) for a in REGIONS for f in FILLS for i in range(len(tilts))]
+    anchors = np.array([a for a, _, _ in combos], np.float64)
+    fills = np.array([f for _, f, _ in combos], np.float64)
+    which = np.array([i for _, _, i in combos])
+    R = rotations[which]
+    T = _place(np.asarray(sol.camera_matrix, np.float64), board, image_size, anchors, fills, R)
+    return _Candidates(anchors, fills, np.array([tilts[i][0] for i in which]),
+                       np.array([tilts[i][1] for i in which]), R, rvecs[which], T)
 
 
 def _board_points(views: Sequence[ViewPoints], board: Board) -> tuple[np.ndarray, float]:
@@ -249,38 +273,39 @@ def _board_points(views: Sequence[ViewPoints], board: Board) -> tuple[np.ndarray
     return pts[::stride], len(pts) / len(pts[::stride])
 
 
-def _views_information(points: np.ndarray, poses: Sequence[tuple[np.ndarray, np.ndarray]],
+def _views_information(points: np.ndarray, centre: np.ndarray, cands: _Candidates,
                        sol: Solution, groups: list[tuple[int, ...]],
                        image_size: tuple[int, int],
                        r_max: float) -> tuple[np.ndarray, np.ndarray]:
-    """The free intrinsics' information each pose's view would bring (unit weight), its own
-    pose eliminated: A^T A - A^T B (B^T B)^-1 B^T A over the points (M, 3) that fall
-    inside the image.
+    """The free intrinsics' information each candidate's view would bring (unit weight), its
+    own pose eliminated: A^T A - A^T B (B^T B)^-1 B^T A over the points (M, 3) that fall
+    inside the image (``centre``: (3,) the board point the candidates' T place).
 
     Returns:
         ((C, p, p) information, (C,) bool: at least 6 points in view).
     """
     p = len(groups)
     w, h = image_size
-    C = len(poses)
-    A_all = np.zeros((C, 2 * len(points), p))
-    B_all = np.zeros((C, 2 * len(points), 6))
-    ok = np.zeros(C, bool)
-    for c, (rvec, tvec) in enumerate(poses):
-        R = cv2.Rodrigues(np.asarray(rvec, np.float64).reshape(3, 1))[0]
-        cam = points @ R.T + tvec
-        with np.errstate(divide="ignore", invalid="ignore"):
-            r = np.hypot(cam[:, 0], cam[:, 1]) / cam[:, 2]
-        px, A, B = project_with_jacobian(points, rvec, tvec, sol.camera_matrix,
-                                         sol.dist_coeffs, sol.model)
-        seen = ((cam[:, 2] > 1e-3) & (r <= r_max) & (px[:, 0] >= 0) & (px[:, 0] <= w - 1)
-                & (px[:, 1] >= 0) & (px[:, 1] <= h - 1))
-        if seen.sum() < 6:
-            continue
-        rows = np.repeat(seen, 2)[:, None]
-        A_all[c] = np.where(rows, free_jacobian(A, groups), 0.0)
-        B_all[c] = np.where(rows, B, 0.0)
-        ok[c] = True
+    C, M = len(cands.T), len(points)
+    if C == 0:
+        return np.zeros((0, p, p)), np.zeros(0, bool)
+    cam = np.einsum("cij,mj->cmi", cands.R, points - centre) + cands.T[:, None, :]
+    with np.errstate(divide="ignore", invalid="ignore"):
+        r = np.hypot(cam[..., 0], cam[..., 1]) / cam[..., 2]
+    tvecs = cands.T - cands.R @ centre
+    jac = [project_with_jacobian(points, cands.rvecs[c], tvecs[c], sol.camera_matrix,
+                                 sol.dist_coeffs, sol.model) for c in range(C)]
+    px = np.stack([j[0] for j in jac])
+    A_full = np.stack([j[1] for j in jac])
+    B_full = np.stack([j[2] for j in jac])
+    n_all = A_full.shape[2]
+    seen = ((cam[..., 2] > 1e-3) & (r <= r_max) & (px[..., 0] >= 0) & (px[..., 0] <= w - 1)
+            & (px[..., 1] >= 0) & (px[..., 1] <= h - 1))
+    ok = seen.sum(axis=1) >= 6
+    rows = np.repeat(seen & ok[:, None], 2, axis=1)[..., None]
+    A_free = free_jacobian(A_full.reshape(C * 2 * M, n_all), groups).reshape(C, 2 * M, p)
+    A_all = np.where(rows, A_free, 0.0)
+    B_all = np.where(rows, B_full, 0.0)
     At = np.swapaxes(A_all, 1, 2)
     AtA, AtB = At @ A_all, At @ B_all
     BtB = np.swapaxes(B_all, 1, 2) @ B_all
@@ -403,20 +428,20 @@ def clip_polygon(poly: np.ndarray, image_size: tuple[int, int]) -> np.ndarray:
     return np.array(out, np.float64).reshape(-1, 2)
 
 
-def _visible_fills(board: Board, poses: Sequence[tuple[np.ndarray, np.ndarray]],
-                   cam: CameraModel, r_max: float) -> np.ndarray:
-    """(C,) share of the image area the board covers for each pose T_cam_board (its outline
-    through the lens, eight points, cut to the image)."""
-    if not poses:
+def _visible_fills(board: Board, R: np.ndarray, T: np.ndarray, cam: CameraModel,
+                   r_max: float) -> np.ndarray:
+    """(C,) share of the image area the board covers for each pose (R_cam_board (C, 3, 3),
+    the board centre's camera-frame position T (C, 3)): its outline through the lens,
+    eight points, cut to the image."""
+    if len(T) == 0:
         return np.zeros(0)
-    edge = _outline_points(board, 2)
-    cam_pts = np.stack([edge @ cv2.Rodrigues(np.asarray(r, np.float64).reshape(3, 1))[0][:, :2].T
-                        + np.asarray(t, np.float64) for r, t in poses])
+    edge = np.hstack([_outline_points(board, 2), np.zeros((8, 1))]) - _centre(board)
+    cam_pts = np.einsum("cij,kj->cki", R, edge) + T[:, None, :]
     front = np.all(cam_pts[..., 2] > 1e-6, axis=1)
-    px = _through_lens(cam_pts.reshape(-1, 3), cam, r_max).reshape(len(poses), -1, 2)
+    px = _through_lens(cam_pts.reshape(-1, 3), cam, r_max).reshape(len(T), -1, 2)
     w, h = cam.size
     image = np.array([[0, 0], [w - 1, 0], [w - 1, h - 1], [0, h - 1]], np.float32)
-    out = np.zeros(len(poses))
+    out = np.zeros(len(T))
     for k in np.flatnonzero(front):
         inter, _ = cv2.intersectConvexConvex(cv2.convexHull(px[k].astype(np.float32)), image)
         out[k] = float(inter) / float((w - 1) * (h - 1))
