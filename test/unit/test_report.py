@@ -220,3 +220,17 @@ def test_a_refused_rig_has_each_cameras_coverage(tmp_path: Path) -> None:
     assert pdf_pages(tmp_path / "report.pdf") == 3
     wall_page = cv2.imread(str(tmp_path / "coverage_wall.png"))
     assert wall_page is not None and wall_page.shape == (750, 1100, 3)
+
+
+def test_views_left_out_are_grouped_by_reason() -> None:
+    from artcal_ros.core.calibrate.report_text import dropped_kinds
+    from artcal_ros.core.calibrate.result import DroppedView
+
+    dropped = [DroppedView(1, "a.png", "3 marker(s), needs at least 6"),
+               DroppedView(4, "b.png", "not selected (similar views kept)"),
+               DroppedView(5, "c.png", "0 marker(s), needs at least 6"),
+               DroppedView(9, "d.png", "not selected (similar views kept)"),
+               DroppedView(12, "e.png", "not selected (similar views kept)")]
+    kinds = dropped_kinds(dropped)
+    assert list(kinds) == ["not selected (similar views kept)", "N marker(s), needs at least N"]
+    assert [d.view_index for d in kinds["N marker(s), needs at least N"]] == [1, 5]
