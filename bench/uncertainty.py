@@ -58,6 +58,7 @@ SESSION_VIEWS = 40
 HONESTY_VIEWS = 20
 MIN_VIEWS = 10
 BOUNDS = (0.1, 0.02)  # readiness.max_uncertainty: the default and a strict one
+EDGE_SHIFT = 0.3  # the left-over edge shift of a view, x its noise level
 
 
 def noisy_view(cam: Camera, rvec: np.ndarray, tvec: np.ndarray, rng: np.random.Generator,
@@ -80,7 +81,7 @@ def noisy_view(cam: Camera, rvec: np.ndarray, tvec: np.ndarray, rng: np.random.G
     err = offset + np.roll(offset, 1, axis=1)  # corner k: sides k - 1 and k
     centre = c.mean(axis=1, keepdims=True)
     out = c - centre
-    err += 0.3 * level * rng.normal() * out / np.maximum(
+    err += EDGE_SHIFT * level * rng.normal() * out / np.maximum(
         np.linalg.norm(out, axis=2, keepdims=True), 1e-9)
     noisy = c + err
     told = (np.repeat(sigma[:, None], 4, axis=1) * np.exp(rng.uniform(np.log(0.6), np.log(1.6)))

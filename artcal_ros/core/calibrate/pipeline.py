@@ -325,7 +325,7 @@ def calibrate(detections: Sequence[Detections], board: Board, *, image_size: tup
     _sanity(sol, views, size, rms, board)
 
     say("estimating uncertainty")
-    cov, _sigma = intrinsic_covariance(views, sol, res, weighted=weighted)
+    cov, _sigma = intrinsic_covariance(views, sol, res, weighted=weighted, by_marker=True)
     std_dev = np.sqrt(np.maximum(np.diag(cov), 0.0))
     effects, unc_rms, unc_max = parameter_effect_px(sol, size, cov)
     holdout = float("nan")

@@ -73,8 +73,8 @@ def projection_difference(true_cam: CameraModel | HasCamera, est_cam: CameraMode
 
 
 def intrinsic_covariance(views: Sequence[ViewPoints], sol: Solution,
-                         res: Sequence[np.ndarray], *,
-                         weighted: bool = False) -> tuple[np.ndarray, float]:
+                         res: Sequence[np.ndarray], *, weighted: bool = False,
+                         by_marker: bool = False) -> tuple[np.ndarray, float]:
     """Covariance of the free intrinsics of a solve, in the order of ``sol.free``.
 
     The residual variance is measured (not assumed), so the figures stay honest when the
@@ -83,6 +83,10 @@ def intrinsic_covariance(views: Sequence[ViewPoints], sol: Solution,
     Args:
         views: the views of the solve; res: their residuals, (M, 2) pixels each.
         weighted: the solve weighted points by :func:`point_weights`.
+        by_marker: the errors of one marker's points may be correlated (its corners come
+            from the same side fits): the covariance is the sandwich S^-1 M S^-1, M summed
+            over markers of the outer product of each marker's residuals through the
+            Jacobian (poses eliminated), instead of S^-1 times the residual variance.
 
     Returns:
         (covariance (p, p), residual sigma per coordinate of unit weight).
@@ -91,6 +95,7 @@ def intrinsic_covariance(views: Sequence[ViewPoints], sol: Solution,
     p = len(groups)
     U = np.zeros((p, p))
     S = np.zeros((p, p))
+    M = np.zeros((p, p))
     n_obs = 0
     sse = 0.0
     for v, r, t, e in zip(views, sol.rvecs, sol.tvecs, res, strict=True):
@@ -99,20 +104,30 @@ def intrinsic_covariance(views: Sequence[ViewPoints], sol: Solution,
                                 sol.model)
         A = free_jacobian(A, groups) * sw[:, None]
         B = B * sw[:, None]
-        sse += float(np.sum((np.asarray(e).ravel() * sw) ** 2))
+        rw = np.asarray(e).ravel() * sw
+        sse += float(np.sum(rw ** 2))
         U += A.T @ A
         W = A.T @ B
-        V = B.T @ B
-        S += W @ np.linalg.pinv(V) @ W.T
+        Vi = np.linalg.pinv(B.T @ B)
+        S += W @ Vi @ W.T
+        if by_marker:
+            # Each row's score on the intrinsics with the view's pose projected out.
+            score = (A - B @ (Vi @ W.T)) * rw[:, None]
+            _, marker = np.unique(np.repeat(v.marker_ids, 2), return_inverse=True)
+            per_marker = np.zeros((int(marker.max()) + 1 if len(marker) else 0, p))
+            np.add.at(per_marker, marker, score)
+            M += per_marker.T @ per_marker
         n_obs += A.shape[0]
     dof = max(n_obs - p - 6 * len(views), 1)
     sigma = float(np.sqrt(sse / dof))
     info = U - S
     try:
-        cov = np.linalg.inv(info) * sigma ** 2
+        inv = np.linalg.inv(info)
     except np.linalg.LinAlgError:
-        cov = np.full((p, p), np.inf)
-    return cov, sigma
+        return np.full((p, p), np.inf), sigma
+    if by_marker:  # residuals are smaller than the errors by the fitted degrees of freedom
+        return inv @ M @ inv * (n_obs / dof), sigma
+    return inv * sigma ** 2, sigma
 
 
 def parameter_effect_px(sol: Solution, image_size: tuple[int, int],

@@ -177,7 +177,7 @@ class LiveSolver:
                 views = reweighted(views, residuals(views, sol))
                 sol = self._adjust(views, sol, (sol.rvecs, sol.tvecs), weighted=True)
             res = residuals(views, sol)
-            cov, _ = intrinsic_covariance(views, sol, res, weighted=weighted)
+            cov, _ = intrinsic_covariance(views, sol, res, weighted=weighted, by_marker=True)
             _, unc_rms, unc_max = parameter_effect_px(sol, image_size, cov)
         except (ArtcalError, np.linalg.LinAlgError, ValueError):
             self._last = None
