@@ -18,7 +18,6 @@ from collections import deque
 from collections.abc import Iterable, Iterator
 from concurrent.futures import Future, ProcessPoolExecutor
 
-import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
@@ -47,9 +46,9 @@ def default_workers() -> int:
 
 
 def _start_worker(board: Board, config: DetectorConfig) -> None:
-    # one process per core already: a worker's kernels and OpenCV use one thread
+    # one process per core already: a worker's kernels use one thread. (OpenCV's are left
+    # alone: cv2.setNumThreads in a forked child can wait forever on its parent's pool.)
     os.environ["ARTCAL_THREADS"] = "1"
-    cv2.setNumThreads(1)
     _WORKER.append(Detector(board, config))
 
 
