@@ -21,8 +21,8 @@ Threads, each started, owned and joined (:meth:`CalibratorNode.stop`) by one obj
   "measure views"  the LiveDetection's: precise detection of those queued frames (and now
                    and then the newest one); only its detections become views;
   "save session"   the SessionStore's: saves the views every few seconds;
-  "live solve"     the LiveSolve's: after every new view, the camera and its projection
-                   uncertainty (readiness), latest-wins, never waited for;
+  "live solve"     the LiveStatus's: after every new view, the camera, its projection
+                   uncertainty (readiness) and the next pose, latest-wins, never waited for;
   "solve"          the node's :class:`~artcal_ros.core.calibrate.solve_run.SolveWorker`:
                    ``~/calibrate`` waits for the queued views, submits the solve and waits
                    for its future in a reentrant callback, so images keep flowing meanwhile.
@@ -66,10 +66,10 @@ from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
 from artcal_ros.core.images.broken_frames import broken_cause
 from artcal_ros.core.live.board_mismatch import BoardMismatch
-from artcal_ros.core.live.coverage import CoverageConfig, Readiness, ViewCollector
-from artcal_ros.core.live.live_solve import LiveSolve, LiveSolveConfig
+from artcal_ros.core.live.coverage import CoverageConfig, ViewCollector
+from artcal_ros.core.live.live_status import LiveStatus
 from artcal_ros.core.live.overlay import render_heat_map, render_overlay
-from artcal_ros.core.live.readiness import calibrate_readiness, live_readiness, uncertainty_text
+from artcal_ros.core.live.readiness import calibrate_readiness
 from artcal_ros.core.live.stream import LiveDetection
 from artcal_ros.core.params import PARAMETERS, ParamValue
 from artcal_ros.ros import msgs
@@ -141,9 +141,9 @@ class CalibratorNode(Node):
                                   on_measured=self._on_measured,
                                   on_error=self._on_worker_error)
         self.solver = SolveWorker(name="solve")
-        self.live_solve = LiveSolve(self.board, LiveSolveConfig.from_params(self.params),
-                                    on_error=self._on_live_solve_error)
-        self._offer_live_solve()  # a resumed session's views
+        self.live_status = LiveStatus(self.board, self.params,
+                                      on_error=self._on_live_solve_error)
+        self.live_status.offer(self.collector.snapshot())  # a resumed session's views
         self.worker: LatestWorker[Any] = LatestWorker(self._process, self._on_worker_error,
                                                       name="track")
         self._publish_coverage()
@@ -231,8 +231,10 @@ class CalibratorNode(Node):
             return
         snap = self.collector.snapshot()  # counts and text of one and the same collection
         picture = render_overlay(image, frame.markers, snap.counts,
-                                 self.readiness(snap.readiness), kept=frame.queued,
+                                 self.live_status.readiness(snap.readiness),
+                                 kept=frame.queued,
                                  max_width=int(self.params["overlay.max_width"]))
+        self.live_status.draw(picture, image.shape[1], frame.markers)
         overlay = msgs.bgr8_image(picture, msgs.header(msg.header.stamp, self.frame_id))
         with self._output_lock:
             if not self._closed:
@@ -244,22 +246,11 @@ class CalibratorNode(Node):
         self.board_mismatch.observe(image, len(dets))
         if kept:
             self._publish_coverage()
-            self._offer_live_solve()
-
-    def _offer_live_solve(self) -> None:
-        # Hands the collection over and returns: the live solve's thread takes the newest.
-        snap = self.collector.snapshot()
-        if snap.image_size is not None and snap.views:
-            self.live_solve.offer(snap.views, snap.image_size)
+            self.live_status.offer(self.collector.snapshot())  # returns at once
 
     def _on_live_solve_error(self, error: BaseException) -> None:
         if not self._stopping.is_set():
             self.get_logger().info(f"live solve: {error}", throttle_duration_sec=10.0)
-
-    def readiness(self, collection: Readiness) -> Readiness:
-        """The collection's readiness judged by the live solve's projection uncertainty."""
-        return live_readiness(collection, self.live_solve.snapshot(),
-                              float(self.params["readiness.max_uncertainty"]))
 
     def _on_broken_frame(self, error: ImageFormatError) -> None:
         cause = broken_cause(error)
@@ -292,19 +283,12 @@ class CalibratorNode(Node):
         # counted as seen first, so processed + dropped never exceeds seen in one report.
         dropped = self.worker.dropped
         live = self.live.counts()
-        estimate = self.live_solve.snapshot()
         collection = self.collector.readiness()
         self.diag_pub.publish(diagnostic_array(
             self.get_name(), str(self.params["camera_name"]), self.counters.report(),
-            dropped, live_readiness(collection, estimate,
-                                    float(self.params["readiness.max_uncertainty"])),
-            self.last_summary,
+            dropped, self.live_status.readiness(collection), self.last_summary,
             self.get_clock().now().to_msg(), board_mismatch=self.board_mismatch.finding,
-            extra={"projection uncertainty": uncertainty_text(estimate, collection.views),
-                   "projection uncertainty needed":
-                       f"{float(self.params['readiness.max_uncertainty']):.3f}",
-                   "live solve": (f"{estimate.seconds:.2f} s, {estimate.n_views} views"
-                                  if estimate is not None else self.live_solve.error),
+            extra={**self.live_status.diagnostics(collection),
                    "frames measured": live.measured, "frames queued": live.queued,
                    "views refused (queue full)": live.refused,
                    "image qos": self.images.choice.text(),
@@ -333,7 +317,7 @@ class CalibratorNode(Node):
         if not readiness.enough_views:
             mismatch = self.board_mismatch.finding
             return SolveOutcome(False, "not enough views to calibrate: "
-                                f"{self.readiness(readiness).summary()}"
+                                f"{self.live_status.readiness(readiness).summary()}"
                                 + (f"; {mismatch}" if mismatch else ""))
         assert size is not None  # there are views
         self.get_logger().info(f"solving from {len(views)} views ({readiness.summary()})")
@@ -389,7 +373,7 @@ class CalibratorNode(Node):
                   ) -> Trigger.Response:
         self.live.reset()
         n = self.collector.reset()
-        self.live_solve.reset()
+        self.live_status.reset()
         self._publish_coverage()
         response.success = True
         response.message = f"cleared {n} views"
@@ -405,10 +389,8 @@ class CalibratorNode(Node):
             self.params = values
             self.collector.config = replace(self.collector.config,
                                             min_views=int(values["min_views"]))
-            live_config = LiveSolveConfig.from_params(values)
-            if live_config != self.live_solve.config:
-                self.live_solve.set_config(live_config)
-                self._offer_live_solve()
+            if self.live_status.reconfigure(values):
+                self.live_status.offer(self.collector.snapshot())
             if solve_options:
                 self.get_logger().info(f"{', '.join(solve_options)}: the next ~/calibrate "
                                        "solves with it")
@@ -430,12 +412,12 @@ class CalibratorNode(Node):
         self.worker.stop(timeout)
         self.live.stop(max(0.0, deadline - time.monotonic()))
         self.solver.close(max(0.0, deadline - time.monotonic()))
-        self.live_solve.stop(max(0.0, deadline - time.monotonic()))
+        self.live_status.stop(max(0.0, deadline - time.monotonic()))
         self.session.close()
         return [name for name, alive in (("track", self.worker.alive),
                                          ("measure views", self.live.alive),
                                          ("solve", self.solver.alive),
-                                         ("live solve", self.live_solve.alive),
+                                         ("live solve", self.live_status.alive),
                                          ("save session", self.session.alive)) if alive]
 
 

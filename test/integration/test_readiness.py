@@ -47,6 +47,7 @@ def test_ready_turns_true_when_the_uncertainty_is_low_enough(
     assert first["projection uncertainty"] == "not yet (0 views)", first
     assert first["ready"] == "false"
     assert first["projection uncertainty needed"] == f"{MAX_UNCERTAINTY_PX:.3f}"
+    assert first["next pose"] == "after the first live solve"
     replay = NodeProcess("replay", ["-p", f"bag:={bag.path}", "-p", "rate:=1.0",
                                     "-p", "loop:=true", "-r", f"{bag.topic}:=/ready/image"],
                          tmp_path)
@@ -69,6 +70,8 @@ def test_ready_turns_true_when_the_uncertainty_is_low_enough(
     u = uncertainty_px(ready)
     assert u is not None and 0 < u <= MAX_UNCERTAINTY_PX, ready
     assert int(ready["views"]) >= int(ready["views needed"]) and ready["missing"] == ""
+    # Where to hold the board next, in words, from the live solve's estimate.
+    assert any(w in ready["next pose"] for w in ("corner", "edge", "centre")), ready["next pose"]
 
     answer = probe.call(Trigger, "/cal_ready/calibrate", timeout=120)
     assert answer.success, answer.message

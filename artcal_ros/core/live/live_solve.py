@@ -128,6 +128,12 @@ class LiveEstimate:
         """Views in the solve."""
         return len(self.views)
 
+    @property
+    def weighted(self) -> bool:
+        """Whether the solve weighted points by their sigmas."""
+        return any(v.sigma_px is not None and bool(np.isfinite(v.sigma_px).any())
+                   for v in self.views)
+
 
 class LiveSolver:
     """Updates the estimate from a growing collection (one thread at a time; no locking).
