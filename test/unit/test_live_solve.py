@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import replace
+from pathlib import Path
 
 import numpy as np
 
@@ -115,3 +116,38 @@ def test_readiness_follows_the_uncertainty() -> None:
     assert live_readiness(few, est, 2 * u).missing == ("3 more views",)
     assert calibrate_readiness(u, 12, 8, 2 * u).startswith("ready")
     assert "2.0 x the bound" in calibrate_readiness(u, 12, 8, 0.5 * u)
+
+
+def test_live_status_says_the_uncertainty_and_the_next_pose() -> None:
+    from artcal_ros.core.live.live_status import LiveStatus
+    from artcal_ros.core.params import load_params
+
+    params = load_params(Path(__file__).resolve().parents[2] / "config" / "calibrator.yaml")
+    collector = ViewCollector(BOARD, CoverageConfig(min_views=10))
+    dets = with_sigmas(noisy_views(CAM, 12, 52), 0.03)
+    for d in dets:
+        collector.add(d)
+    status = LiveStatus(BOARD, params)
+    try:
+        snap = collector.snapshot()
+        first = status.diagnostics(snap.readiness)
+        assert first["projection uncertainty"] == f"not yet ({snap.readiness.views} views)"
+        assert first["next pose"] == "after the first live solve"
+        status.offer(snap)
+        deadline = time.monotonic() + 60
+        while status.suggestion is None and time.monotonic() < deadline:
+            time.sleep(0.02)
+        est, suggestion = status.estimate, status.suggestion
+        assert est is not None and suggestion is not None
+        values = status.diagnostics(snap.readiness)
+        assert values["projection uncertainty"].startswith(f"{est.uncertainty_rms_px:.3f} px")
+        assert values["next pose"] == suggestion.text
+        # the suggestion is expected to lower the uncertainty it was chosen against
+        assert suggestion.uncertainty_rms_px < suggestion.current_uncertainty_rms_px
+        overlay = np.zeros((480, 640, 3), np.uint8)
+        status.draw(overlay, 640, Detections.empty(CAM.size))
+        assert overlay.any(), "the outline is drawn"
+        status.reset()
+        assert status.suggestion is None and status.estimate is None
+    finally:
+        assert status.stop(10.0)
