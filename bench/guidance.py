@@ -1,13 +1,16 @@
 """Does next-pose guidance need fewer views? Simulated sessions against a known camera.
 
-    python -m bench.guidance                  # webcam, hd, wide; 20 sessions each (~1 h, 2 cores)
-    python -m bench.guidance --quick          # webcam, 2 sessions of 8 views (~30 s)
+    python -m bench.guidance              # webcam, hd, wide, webcam with an A4 board: 20 sessions
+                                          # each (~40 min on 2 busy cores)
+    python -m bench.guidance --quick      # webcam, 2 sessions of 8 views (~30 s)
 
-Each session starts from the same 3 random views for every strategy, then adds one view at
-a time, re-solving after each (the bundle adjustment warm-started from the last solve, a
-new view's pose from the current camera), until the true projection difference
-(:func:`projection_difference` against the preset's camera) is at most 0.05 px or
-``--max-views`` are used. Three ways to choose the next view:
+Each session starts from the same 3 random views (poses and noise) for every strategy, then
+adds one view at a time up to ``--max-views``, re-solving after each (the bundle adjustment
+warm-started from the last solve, a new view's pose from the current camera) and measuring
+the true projection difference (:func:`projection_difference` against the preset's camera)
+and the solve's own projection uncertainty RMS. The board is the default one (19 x 9
+markers, 1.5 x 0.7 m) or one printed on A4 paper (7 x 5 markers of 30 mm). Three ways to
+choose the next view:
 
 - ``guided``: :func:`next_pose` from the current solve; a virtual user shows that pose with
   human-sized errors: the board's centre off by a Gaussian 10 % of its distance along each
@@ -26,9 +29,11 @@ error on clean frames is 0.03-0.05 px), not rendered images: the strategies diff
 where the board goes, and rendering 3 x 20 sessions of up to 40 frames would take hours.
 A view needs at least 6 markers' corners in the image (else the user shows the board again).
 
-Reported: views needed to reach 0.1 px and 0.05 px, median over the sessions (a session
-that never reaches it counts as more than ``--max-views``), and the time of one
-:func:`next_pose` call at 40 views.
+Reported, median over the sessions (a session that never gets there counts as more than
+``--max-views``): views until the true difference first reaches 0.1 px and 0.05 px, views
+from which on it stays at or below them to the session's end, and views until the solve's
+uncertainty reaches 0.05 px; in brackets the guided median over this strategy's. Also the
+time of one :func:`next_pose` call at 40 views.
 """
 
 from __future__ import annotations
@@ -69,7 +74,10 @@ from artcal_ros.synth import Camera
 from artcal_ros.synth.poses import ease_between
 
 BOARD = Board()
-PRESETS = ("webcam", "hd", "wide")
+# A board printed on A4 paper: 7 x 5 markers of 30 mm, 10 mm apart (270 x 190 mm)
+A4_BOARD = Board(cols=7, rows=5, marker_length=0.03, marker_separation=0.01)
+BOARDS = {"default": BOARD, "a4": A4_BOARD}
+CASES = ("webcam", "hd", "wide", "webcam:a4")
 STRATEGIES = ("guided", "random", "bars")
 THRESHOLDS_PX = (0.1, 0.05)
 NOISE_PX = 0.04
@@ -128,11 +136,12 @@ def _first_at_or_below(values: list[float], threshold: float) -> int | None:
 class World:
     """The true camera, the board and a detector of given noise."""
 
-    def __init__(self, preset: str, rng: np.random.Generator) -> None:
+    def __init__(self, preset: str, rng: np.random.Generator, board: Board = BOARD) -> None:
         self.cam = Camera.preset(preset)
         self.size = self.cam.size
-        self.obj = BOARD.object_corners().reshape(-1, 3)
-        self.ids = np.repeat(BOARD.ids, 4)
+        self.board = board
+        self.obj = board.object_corners().reshape(-1, 3)
+        self.ids = np.repeat(board.ids, 4)
         self.rng = rng
         self._wave: list[tuple[np.ndarray, np.ndarray]] = []
         self._key: tuple[np.ndarray, np.ndarray] | None = None
@@ -181,7 +190,7 @@ class World:
 
     def random_pose(self, rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
         """A random holdable pose of the board (see the module docstring)."""
-        return holdable_pose(self.cam.K, BOARD, self.size,
+        return holdable_pose(self.cam.K, self.board, self.size,
                              anchor=(float(rng.uniform()), float(rng.uniform())),
                              fill=float(rng.uniform(0.2, 0.8)),
                              tilt_direction_deg=float(rng.uniform(0.0, 360.0)),
@@ -189,11 +198,11 @@ class World:
                              roll_deg=float(rng.uniform(-15.0, 15.0)))
 
 
-def human_error(rvec: np.ndarray, tvec: np.ndarray,
+def human_error(board: Board, rvec: np.ndarray, tvec: np.ndarray,
                 rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
     """T_cam_board as a person holds it when asked for (rvec, tvec): the board's centre off
     by POSITION_ERROR of its distance per axis, turned TILT_ERROR_DEG about a random axis."""
-    x0, y0, x1, y1 = BOARD.extent_m
+    x0, y0, x1, y1 = board.extent_m
     centre = np.array([(x0 + x1) / 2, (y0 + y1) / 2, 0.0])
     R = cv2.Rodrigues(np.asarray(rvec, np.float64).reshape(3, 1))[0]
     c = R @ centre + tvec
@@ -205,11 +214,16 @@ def human_error(rvec: np.ndarray, tvec: np.ndarray,
     return cv2.Rodrigues(R_new)[0].ravel(), c_new - R_new @ centre
 
 
-def bars_parameters(px: np.ndarray, ok: np.ndarray, size: tuple[int, int]) -> np.ndarray:
+def bars_parameters(board: Board, px: np.ndarray, ok: np.ndarray,
+                    size: tuple[int, int]) -> np.ndarray:
     """camera_calibration's (X, Y, size, skew) of a view, from the outer corners of the part
-    of the grid in view (the board-frame rectangle spanning its visible points)."""
+    of the grid in view (the board-frame rectangle spanning its visible points).
+
+    Args:
+        px: (M, 2) the image of every marker corner of ``board``; ok: (M,) which are in view.
+    """
     w, h = size
-    obj = BOARD.object_corners().reshape(-1, 3)[ok]
+    obj = board.object_corners().reshape(-1, 3)[ok]
     img = px[ok]
     # the visible point nearest each corner of the visible part's board-frame rectangle
     lo, hi = obj[:, :2].min(axis=0), obj[:, :2].max(axis=0)
@@ -231,13 +245,14 @@ def bars_parameters(px: np.ndarray, ok: np.ndarray, size: tuple[int, int]) -> np
 
 
 def run_session(preset: str, strategy: str, seed: int, max_views: int, *,
+                board: Board = BOARD,
                 timings: list[tuple[int, float]] | None = None) -> Session:
     """One session of ``strategy``; the first START_VIEWS views are the same random views for
     every strategy of the same seed."""
     # The start views (poses and noise) come from the seed alone, the rest from the strategy.
     start_rng = np.random.default_rng(seed)
     rng = np.random.default_rng([seed, STRATEGIES.index(strategy)])
-    world = World(preset, start_rng)
+    world = World(preset, start_rng, board)
     model = "plumb_bob"
     options = SolveOptions(k_coefficients=K_COEFFICIENTS.get(preset, 2))
     free = free_parameters(model, options=options)
@@ -250,7 +265,7 @@ def run_session(preset: str, strategy: str, seed: int, max_views: int, *,
         if v is not None:
             views.append(v)
             if strategy == "bars":
-                bars_db.append(bars_parameters(*world.inside(r, t), world.size))
+                bars_db.append(bars_parameters(board, *world.inside(r, t), world.size))
     session.frames_seen = START_VIEWS
     world.rng = rng
     sol: Solution | None = None
@@ -279,13 +294,14 @@ def _next_view(world: World, strategy: str, views: list[ViewPoints], sol: Soluti
     index = len(views)
     if strategy == "guided" and sol is not None:
         t0 = time.perf_counter()
-        suggestion = next_pose(views, sol, BOARD, world.size)
+        suggestion = next_pose(views, sol, world.board, world.size)
         if timings is not None:
             timings.append((len(views), time.perf_counter() - t0))
         if suggestion is not None:
             for _attempt in range(10):
                 session.frames_seen += 1
-                v = world.view(*human_error(suggestion.rvec, suggestion.tvec, rng), index)
+                v = world.view(*human_error(world.board, suggestion.rvec, suggestion.tvec,
+                                            rng), index)
                 if v is not None:
                     return v
     if strategy == "bars":
@@ -295,7 +311,7 @@ def _next_view(world: World, strategy: str, views: list[ViewPoints], sol: Soluti
             px, ok = world.inside(r, t)
             if ok.sum() < MIN_POINTS:
                 continue
-            params = bars_parameters(px, ok, world.size)
+            params = bars_parameters(world.board, px, ok, world.size)
             if min(float(np.abs(params - p).sum()) for p in bars_db) > BARS_THRESHOLD:
                 bars_db.append(params)
                 return world.view(r, t, index)
@@ -346,10 +362,11 @@ def _uncertainty(views: list[ViewPoints], sol: Solution | None,
     return u if math.isfinite(u) else math.inf
 
 
-def time_next_pose(preset: str, n_views: int = 40, repeats: int = 5) -> float:
+def time_next_pose(preset: str, n_views: int = 40, repeats: int = 5, *,
+                   board: Board = BOARD) -> float:
     """Median seconds of one :func:`next_pose` call at ``n_views`` random views."""
     rng = np.random.default_rng(SEED - 1)
-    world = World(preset, rng)
+    world = World(preset, rng, board)
     views: list[ViewPoints] = []
     while len(views) < n_views:
         v = world.view(*world.random_pose(rng), len(views))
@@ -360,7 +377,7 @@ def time_next_pose(preset: str, n_views: int = 40, repeats: int = 5) -> float:
     times = []
     for _ in range(repeats):
         t0 = time.perf_counter()
-        next_pose(views, sol, BOARD, world.size)
+        next_pose(views, sol, board, world.size)
         times.append(time.perf_counter() - t0)
     return statistics.median(times)
 
@@ -375,29 +392,37 @@ MEASURES: tuple[tuple[str, Callable[[Session], int | None]], ...] = (
 )
 
 
-def run(presets: tuple[str, ...], sessions: int, max_views: int, *,
+def run(cases: tuple[str, ...], sessions: int, max_views: int, *,
         log: Callable[[str], None] = print) -> dict[str, Any]:
-    """Every session of every preset and strategy; the rows of the tables."""
-    out: dict[str, Any] = {"presets": {}, "max_views": max_views, "sessions": sessions}
-    for preset in presets:
+    """Every session of every case and strategy; the rows of the tables.
+
+    Args:
+        cases: "preset" or "preset:board" (a name of BOARDS; default: the default board).
+    """
+    out: dict[str, Any] = {"cases": {}, "max_views": max_views, "sessions": sessions}
+    for case in cases:
+        preset, _, board_name = case.partition(":")
+        board = BOARDS[board_name or "default"]
+        label = f"{preset}, {board_name or 'default'} board"
         per: dict[str, list[Session]] = {s: [] for s in STRATEGIES}
         timings: list[tuple[int, float]] = []
         for k in range(sessions):
             for strategy in STRATEGIES:
                 t0 = time.perf_counter()
-                s = run_session(preset, strategy, SEED + k, max_views, timings=timings)
+                s = run_session(preset, strategy, SEED + k, max_views, board=board,
+                                timings=timings)
                 per[strategy].append(s)
-                log(f"{preset} session {k} {strategy}: views "
+                log(f"{label} session {k} {strategy}: views "
                     + ", ".join(f"{name} {fn(s)}" for name, fn in MEASURES)
                     + f"; frames {s.frames_seen}, {time.perf_counter() - t0:.1f} s")
-        out["presets"][preset] = {
+        out["cases"][label] = {
             "sessions": {st: [{"seed": s.seed, "difference_px": s.difference_px,
                                "uncertainty_px": s.uncertainty_px,
                                "frames_seen": s.frames_seen} for s in ss]
                          for st, ss in per.items()},
             "views": {st: {name: [fn(s) for s in ss] for name, fn in MEASURES}
                       for st, ss in per.items()},
-            "next_pose_s_at_40": time_next_pose(preset),
+            "next_pose_s_at_40": time_next_pose(preset, board=board),
             "next_pose_s_in_sessions": statistics.median([t for _, t in timings])
             if timings else math.nan,
         }
@@ -414,9 +439,9 @@ def markdown(result: dict[str, Any]) -> str:
     guided sessions' median against this strategy's (guided / this)."""
     cap = result["max_views"]
     names = [name for name, _ in MEASURES]
-    lines = ["| camera | strategy | " + " | ".join(names) + " |",
+    lines = ["| camera, board | strategy | " + " | ".join(names) + " |",
              "|---|---|" + "---|" * len(names)]
-    for preset, r in result["presets"].items():
+    for label, r in result["cases"].items():
         for st in STRATEGIES:
             cells = []
             for name in names:
@@ -426,7 +451,31 @@ def markdown(result: dict[str, Any]) -> str:
                     g = _median(r["views"]["guided"][name], cap)
                     text += f" ({g / m:.2f})"
                 cells.append(text)
-            lines.append(f"| {preset} | {st} | " + " | ".join(cells) + " |")
+            lines.append(f"| {label} | {st} | " + " | ".join(cells) + " |")
+    return "\n".join(lines)
+
+
+def markdown_differences(result: dict[str, Any], at: tuple[int, ...] = (10, 20, 40)) -> str:
+    """Median true projection difference (px) per strategy after ``at`` views, and the
+    median of difference over the solve's uncertainty (at the same views)."""
+    at = tuple(n for n in at if n <= result["max_views"])
+    head = " | ".join(f"{n} views" for n in at)
+    lines = [f"| camera, board | strategy | {head} | difference / uncertainty |",
+             "|---|---|" + "---|" * (len(at) + 1)]
+    for label, r in result["cases"].items():
+        for st in STRATEGIES:
+            sessions = r["sessions"][st]
+            cells = []
+            ratios = []
+            for n in at:
+                d = [s["difference_px"][n - 1] for s in sessions if len(s["difference_px"]) >= n]
+                u = [s["uncertainty_px"][n - 1] for s in sessions
+                     if len(s["uncertainty_px"]) >= n]
+                cells.append(f"{statistics.median(d):.4f}" if d else "-")
+                ratios.append(f"{statistics.median(x / y for x, y in zip(d, u, strict=True)):.2f}"
+                              if d else "-")
+            lines.append(f"| {label} | {st} | " + " | ".join(cells) + " | "
+                         + " / ".join(ratios) + " |")
     return "\n".join(lines)
 
 
@@ -434,22 +483,25 @@ def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.guidance", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
     parser.add_argument("--quick", action="store_true", help="webcam, 2 sessions, 8 views")
-    parser.add_argument("--presets", default=",".join(PRESETS))
+    parser.add_argument("--cases", default=",".join(CASES),
+                        help="preset[:board] list, boards: " + ", ".join(BOARDS))
     parser.add_argument("--sessions", type=int, default=20)
     parser.add_argument("--max-views", type=int, default=40)
     parser.add_argument("--json", type=Path, help="write every session's figures here")
     args = parser.parse_args(argv)
-    presets = ("webcam",) if args.quick else tuple(args.presets.split(","))
+    cases = ("webcam",) if args.quick else tuple(args.cases.split(","))
     sessions = 2 if args.quick else args.sessions
     max_views = 8 if args.quick else args.max_views
     start = time.perf_counter()
-    result = run(presets, sessions, max_views)
+    result = run(cases, sessions, max_views)
     print(f"\nviews needed to reach a true projection difference, median of {sessions} "
           f"sessions (at most {max_views} views; {START_VIEWS} shared random views first; "
           f"corner noise {NOISE_PX} px)\n")
     print(markdown(result))
-    for preset, r in result["presets"].items():
-        print(f"\n{preset}: next_pose {r['next_pose_s_at_40'] * 1000:.0f} ms at 40 views, "
+    print("\nmedian true projection difference (px) after so many views\n")
+    print(markdown_differences(result))
+    for label, r in result["cases"].items():
+        print(f"\n{label}: next_pose {r['next_pose_s_at_40'] * 1000:.0f} ms at 40 views, "
               f"median {r['next_pose_s_in_sessions'] * 1000:.0f} ms in the guided sessions")
     print(f"\n{time.perf_counter() - start:.0f} s")
     if args.json:

@@ -12,7 +12,7 @@ from bench import guidance
 
 def test_one_short_session_of_each_strategy_gives_complete_rows() -> None:
     result = guidance.run(("webcam",), 1, 5, log=lambda _line: None)
-    r = result["presets"]["webcam"]
+    r = result["cases"]["webcam, default board"]
     for strategy in guidance.STRATEGIES:
         (session,) = r["sessions"][strategy]
         d = session["difference_px"]
@@ -26,7 +26,9 @@ def test_one_short_session_of_each_strategy_gives_complete_rows() -> None:
             assert views is None or guidance.START_VIEWS <= views <= 5
     assert math.isfinite(r["next_pose_s_at_40"]) and r["next_pose_s_at_40"] > 0
     table = guidance.markdown(result)
-    assert table.count("\n| webcam |") == len(guidance.STRATEGIES)
+    assert table.count("\n| webcam, default board |") == len(guidance.STRATEGIES)
+    differences = guidance.markdown_differences(result, at=(4, 5))
+    assert differences.count("\n| webcam, default board |") == len(guidance.STRATEGIES)
 
 
 def test_the_same_seed_starts_every_strategy_from_the_same_views() -> None:
@@ -43,7 +45,8 @@ def test_bars_parameters_of_a_centred_fronto_parallel_board() -> None:
     x0, y0, x1, y1 = guidance.BOARD.extent_m
     scale = 0.5 * w / (x1 - x0)
     px = (obj[:, :2] - [(x0 + x1) / 2, (y0 + y1) / 2]) * scale + [(w - 1) / 2, (h - 1) / 2]
-    x, y, size, skew = guidance.bars_parameters(px, np.ones(len(obj), bool), (w, h))
+    x, y, size, skew = guidance.bars_parameters(guidance.BOARD, px, np.ones(len(obj), bool),
+                                                (w, h))
     assert abs(x - 0.5) < 0.02 and abs(y - 0.5) < 0.02
     area = (0.5 * w) * (0.5 * w * (y1 - y0) / (x1 - x0))
     assert math.isclose(size, math.sqrt(area / (w * h)), rel_tol=0.02)
