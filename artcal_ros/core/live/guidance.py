@@ -207,7 +207,7 @@ def next_pose(views: Sequence[ViewPoints], sol: Solution, board: Board,
     direction, tilt = int(cands.direction[k]), float(cands.tilt_deg[k])
     rvec, tvec = cands.rvecs[k].copy(), cands.T[k] - cands.R[k] @ _centre(board)
     after = float(rms[k])
-    depth = float((cv2.Rodrigues(rvec)[0] @ _centre(board) + tvec)[2])
+    depth = float(cands.T[k, 2])  # of the board's centre
     distance = ("same distance" if not math.isfinite(typical)
                 else "closer" if depth < CLOSER * typical
                 else "farther" if depth > FARTHER * typical else "same distance")
@@ -446,11 +446,6 @@ def _visible_fills(board: Board, R: np.ndarray, T: np.ndarray, cam: CameraModel,
         inter, _ = cv2.intersectConvexConvex(cv2.convexHull(px[k].astype(np.float32)), image)
         out[k] = float(inter) / float((w - 1) * (h - 1))
     return out
-
-
-def _area(poly: np.ndarray) -> float:
-    x, y = poly[:, 0], poly[:, 1]
-    return 0.5 * abs(float(np.dot(x, np.roll(y, -1)) - np.dot(y, np.roll(x, -1))))
 
 
 def pose_match(suggestion: NextPose, live_points_px: np.ndarray) -> float:
