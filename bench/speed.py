@@ -16,7 +16,12 @@ time per frame of:
   checked against the truth), and once more with each precise detection arriving as many
   frames late as it took at 30 fps, as the node's background tier delivers them here
   (markers shown);
-- ``cv2.aruco.ArucoDetector`` with its default parameters.
+- ``cv2.aruco.ArucoDetector`` with its default parameters;
+- offline, as ``artcal calibrate`` reads a recording: :func:`detect_frames` on as many
+  worker processes as threads (one kernel thread each), the mean wall time per frame of
+  the whole set, its warm-up included (:data:`OFFLINE_WARMUP` frames, then runs of
+  :data:`OFFLINE_RUN`: shorter than the command's 8 and 16, so that a dozen frames keep
+  both workers busy; the work per frame is the same).
 
 Against the renderer's truth: corner RMS of the precise and of OpenCV's corners, the
 tracked corners' median error, and markers found per frame. An empty scene (the wall
@@ -41,6 +46,7 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector, detect
+from artcal_ros.core.detect.frames import detect_frames
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.live.tracking import MarkerTracker
 from artcal_ros.synth import Camera, RenderedView, render_view
@@ -55,6 +61,7 @@ EMPTY = "1920x1080 empty"
 
 
 FRAME_S = 1 / 30  # the stream's frame period, seconds
+OFFLINE_WARMUP, OFFLINE_RUN = 2, 4  # detect_frames' warm-up and run length here
 
 
 @dataclass(frozen=True)
@@ -71,6 +78,8 @@ class Row:
         live_markers, live_lag: mean markers per frame the tracker shows when each precise
             detection arrives ``live_lag`` frames late (its measured time at 30 fps), as in
             the node on this machine.
+        offline_ms: mean wall time per frame of the whole set detected offline on
+            ``threads`` processes (precise, as the streamed Detector).
     """
 
     frames: str
@@ -87,6 +96,7 @@ class Row:
     opencv_rms_px: float
     live_markers: float
     live_lag: int
+    offline_ms: float = float("nan")
 
 
 def camera(name: str) -> Camera:
@@ -207,7 +217,7 @@ def _time_frames(name: str, views: list[RenderedView], threads: int, repeats: in
     detect(frames[0], board)
     aruco.detectMarkers(frames[0])
     MarkerTracker(board).track(frames[0])
-    cold, stream, tracked, ocv = [], [], [], []
+    cold, stream, tracked, ocv, offline = [], [], [], [], []
     precise: list[Detections] = []
     for _ in range(repeats):
         precise.clear()
@@ -220,6 +230,10 @@ def _time_frames(name: str, views: list[RenderedView], threads: int, repeats: in
         lag = max(1, int(np.ceil(cold[-1] / 1e3 / FRAME_S)))
         _, live = track_stream(board, frames, precise, lag)
         ocv.append(_median_ms(aruco.detectMarkers, frames))
+        t0 = time.perf_counter()
+        list(detect_frames([(str(k), im) for k, im in enumerate(frames)], Detector(board),
+                           workers=threads, warmup=OFFLINE_WARMUP, run=OFFLINE_RUN))
+        offline.append(1e3 * (time.perf_counter() - t0) / len(frames))
     found = [_opencv_markers(aruco, im, board) for im in frames]
     err = [_errors(d.ids, d.corners_px, v) for d, v in zip(precise, views, strict=True)]
     err_cv = [_errors(i, c, v) for (i, c), v in zip(found, views, strict=True)]
@@ -236,7 +250,7 @@ def _time_frames(name: str, views: list[RenderedView], threads: int, repeats: in
                float(np.mean([len(d) for d in shown])),
                float(np.mean([len(i) for i, _ in found])), rms(err),
                float(np.median(flat_tr)) if flat_tr.size else float("nan"), rms(err_cv),
-               float(np.mean([len(d) for d in live])), lag)
+               float(np.mean([len(d) for d in live])), lag, float(np.median(offline)))
 
 
 def run(names: list[str], n_frames: int, threads: list[int], seed: int = 31337,
@@ -269,13 +283,15 @@ def run(names: list[str], n_frames: int, threads: list[int], seed: int = 31337,
 def table(rows: list[Row]) -> str:
     """Markdown tables of the rows: times with ratios to OpenCV, then accuracy."""
     lines = ["| frames | threads | cold ms | streamed ms | tracked ms | OpenCV ms "
-             "| cold / OpenCV | streamed / OpenCV | tracked / OpenCV |",
-             "|---|---|---|---|---|---|---|---|---|"]
+             "| cold / OpenCV | streamed / OpenCV | tracked / OpenCV | offline ms "
+             "(processes = threads) | offline / OpenCV |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in rows:
         cv_ms = max(r.opencv_ms, 1e-9)
         lines.append(f"| {r.frames} | {r.threads} | {r.cold_ms:.1f} | {r.stream_ms:.1f} | "
                      f"{r.tracked_ms:.1f} | {r.opencv_ms:.1f} | {r.cold_ms / cv_ms:.2f} | "
-                     f"{r.stream_ms / cv_ms:.2f} | {r.tracked_ms / cv_ms:.2f} |")
+                     f"{r.stream_ms / cv_ms:.2f} | {r.tracked_ms / cv_ms:.2f} | "
+                     f"{r.offline_ms:.1f} | {r.offline_ms / cv_ms:.2f} |")
     lines += ["", "| frames | markers: precise / tracked / OpenCV | corner RMS px: precise "
               "| OpenCV | tracked median px | tracked markers with the precise detections "
               "late (frames) |", "|---|---|---|---|---|---|"]
@@ -338,6 +354,12 @@ def plot(rows: list[Row], path: Path, threads: int) -> None:
     cv2.imwrite(str(path), img)
 
 
+def _now_and_load() -> str:
+    """The date (UTC) and the machine's load averages (1, 5, 15 min): the times depend on it."""
+    load = ", ".join(f"{v:.2f}" for v in os.getloadavg())
+    return f"{time.strftime('%Y-%m-%d %H:%M UTC', time.gmtime())}, load average {load}"
+
+
 def main(argv: list[str] | None = None) -> int:
     """Time, print the table, write the plot."""
     ap = argparse.ArgumentParser(description=__doc__.split("\n")[0])
@@ -350,8 +372,10 @@ def main(argv: list[str] | None = None) -> int:
     names = list(RESOLUTIONS)
     print(f"# Detection speed: {n} frames per resolution, smooth sweep, median ms per frame\n",
           flush=True)
+    print(f"started {_now_and_load()}\n", flush=True)
     rows = run(names, n, [1, 2], repeats=1 if args.quick else 2, progress=True)
     print(table(rows))
+    print(f"\nended {_now_and_load()}")
     plot(rows, args.plot, 2)
     print(f"\nplot: {args.plot}")
     return 0

@@ -22,6 +22,7 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect.detector import Detector, DetectorConfig
+from artcal_ros.core.detect.image import to_gray
 from artcal_ros.core.detect.lens import LensPoolState
 from artcal_ros.core.detect.tone import ToneState
 from artcal_ros.core.detections import Detections
@@ -81,7 +82,10 @@ def detect_frames(frames: Iterable[Frame], detector: Detector, *, workers: int =
     for source, image in itertools.islice(frames, warmup):
         yield detector.detect(image, source=source)
     state = detector.snapshot()
-    runs = iter(lambda: list(itertools.islice(frames, max(1, run))), [])
+    # (grey before it travels: a third of a colour frame to copy and hold; the detector's
+    # first step anyway)
+    runs = iter(lambda: [(source, to_gray(image))
+                         for source, image in itertools.islice(frames, max(1, run))], [])
     first = list(itertools.islice(runs, 2))
     workers = workers if workers > 0 else default_workers()
     if (len(first) < 2 or workers <= 1
@@ -99,7 +103,7 @@ def detect_frames(frames: Iterable[Frame], detector: Detector, *, workers: int =
         pending: deque[Future[list[Detections]]] = deque()
         for frames_run in itertools.chain(first, runs):
             pending.append(pool.submit(_worker_run, state, frames_run))
-            if len(pending) > 2 * workers:
+            if len(pending) > workers:  # a run waiting for each worker, no more in memory
                 yield from pending.popleft().result()
         while pending:
             yield from pending.popleft().result()
