@@ -11,6 +11,10 @@
     artcal calibrate --bag BAG --camera left=/left/image_raw --camera right=/right/image_raw \
         --params P --output-dir D [--report DIR]       # a rig: cli/calibrate_rig.py
 
+From a bag every frame of the topic is detected (``--max-frames N`` or ``--time-budget S``
+bound it), on one process per CPU (``--jobs N``, :mod:`artcal_ros.core.detect.frames`), and
+the views are chosen from all of them.
+
 The solve options are the parameters file's (``camera_model``, ``points``, ``max_views``,
 ``calibrate.*``), as for the calibrator node; the detection, solve, write and summary are
 the solve run the node uses too (:mod:`artcal_ros.core.calibrate.solve_run`).
@@ -99,7 +103,8 @@ def add_arguments(parser: argparse.ArgumentParser) -> None:
                         help="from a bag, space the frames so that reading and detecting "
                              "take about S seconds (default 0 = no limit; a rig: 40)")
     parser.add_argument("--jobs", type=int, default=0, metavar="N",
-                        help="processes that detect the frames (default 0 = one per CPU)")
+                        help="processes that detect one camera's frames (default 0 = one "
+                             "per CPU)")
     add_board_arguments(parser)
     parser.add_argument("--k3", action="store_true",
                         help="deprecated: the same as --set calibrate.k_coefficients=3 "
