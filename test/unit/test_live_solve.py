@@ -151,3 +151,24 @@ def test_live_status_says_the_uncertainty_and_the_next_pose() -> None:
         assert status.suggestion is None and status.estimate is None
     finally:
         assert status.stop(10.0)
+
+
+def test_a_wrong_start_is_refused_and_does_not_stick() -> None:
+    # The fisheye's first 3-5 views of this session fit only a wrong minimum (21-35 px):
+    # refused, and the next update starts cold instead of from it.
+    from artcal_ros.core.errors import CalibrationError
+    from artcal_ros.core.live.live_solve import LiveSolveConfig
+
+    fisheye = Camera.preset("fisheye")
+    dets = with_sigmas(noisy_views(fisheye, 15, 21), 0.03)
+    solver = LiveSolver(BOARD, LiveSolveConfig(model="equidistant"))
+    refused, est = 0, None
+    for n in range(3, 16):
+        try:
+            est = solver.update(dets[:n], fisheye.size)
+        except CalibrationError as e:
+            assert "px RMS" in str(e)
+            refused += 1
+    assert refused >= 1 and est is not None and est.collected == 15
+    assert est.reprojection_rms_px < 0.1
+    assert projection_difference(fisheye, est.camera)[0] < 4 * est.uncertainty_rms_px

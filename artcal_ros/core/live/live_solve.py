@@ -29,6 +29,7 @@ import numpy as np
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate.lm import reweighted
+from artcal_ros.core.calibrate.pipeline import max_rms_px
 from artcal_ros.core.calibrate.quality import (
     intrinsic_covariance,
     parameter_effect_px,
@@ -53,7 +54,7 @@ from artcal_ros.core.calibrate.views import (
 )
 from artcal_ros.core.camera import CameraModel
 from artcal_ros.core.detections import Detections
-from artcal_ros.core.errors import ArtcalError
+from artcal_ros.core.errors import ArtcalError, CalibrationError
 from artcal_ros.core.live.background import BackgroundTier
 
 __all__ = ["LiveEstimate", "LiveSolve", "LiveSolveConfig", "LiveSolver"]
@@ -174,15 +175,16 @@ class LiveSolver:
             usable = [usable[k] for k in keep]
         warm = self._last is not None
         try:
-            sol, views = (self._warm(usable, image_size) if warm
-                          else self._cold(usable, image_size))
-            sol, views = self._without_outliers(sol, views)
+            sol, views, res = self._solve(usable, image_size, warm)
+            problem = _implausible(sol, res, image_size)
+            if problem and warm:  # the previous estimate led astray: start again
+                warm = False
+                sol, views, res = self._solve(usable, image_size, warm)
+                problem = _implausible(sol, res, image_size)
+            if problem:
+                raise CalibrationError(f"{len(usable)} views: {problem}")
             weighted = any(v.sigma_px is not None and np.isfinite(v.sigma_px).any()
                            for v in views)
-            if weighted:
-                views = reweighted(views, residuals(views, sol))
-                sol = self._adjust(views, sol, (sol.rvecs, sol.tvecs), weighted=True)
-            res = residuals(views, sol)
             cov, _ = intrinsic_covariance(views, sol, res, weighted=weighted, by_marker=True)
             _, unc_rms, unc_max = parameter_effect_px(sol, image_size, cov)
         except (ArtcalError, np.linalg.LinAlgError, ValueError):
@@ -199,6 +201,17 @@ class LiveSolver:
             reprojection_rms_px=float(np.sqrt(np.mean(np.sum(r ** 2, axis=1)))),
             collected=len(collection), seconds=time.monotonic() - start, warm=warm,
             finished=time.monotonic())
+
+    def _solve(self, usable: list[ViewPoints], size: tuple[int, int], warm: bool
+               ) -> tuple[Solution, list[ViewPoints], list[np.ndarray]]:
+        """(solution, the views as solved, their residuals): warm or cold, outlier points
+        left out, the weights re-scaled to the residuals."""
+        sol, views = self._warm(usable, size) if warm else self._cold(usable, size)
+        sol, views = self._without_outliers(sol, views)
+        if any(v.sigma_px is not None and np.isfinite(v.sigma_px).any() for v in views):
+            views = reweighted(views, residuals(views, sol))
+            sol = self._adjust(views, sol, (sol.rvecs, sol.tvecs), weighted=True)
+        return sol, views, residuals(views, sol)
 
     def _follow(self, collection: Sequence[Detections], image_size: tuple[int, int]) -> None:
         """Take the collection's new views; a collection that is not the old one grown
@@ -270,6 +283,18 @@ class LiveSolver:
         weighted = any(v.sigma_px is not None and np.isfinite(v.sigma_px).any() for v in kept)
         return self._adjust(kept, sol, (sol.rvecs[rows], sol.tvecs[rows]),
                             weighted=weighted), kept
+
+
+def _implausible(sol: Solution, res: list[np.ndarray], size: tuple[int, int]) -> str | None:
+    """Why a solve cannot be the camera (the final solve's first checks), or None."""
+    r = np.concatenate([np.asarray(x).reshape(-1, 2) for x in res])
+    rms = float(np.sqrt(np.mean(np.sum(r ** 2, axis=1))))
+    K = sol.camera_matrix
+    if not rms <= max_rms_px(size):
+        return f"the fit leaves {rms:.2f} px RMS (a wrong start or the wrong board or model)"
+    if not (0 <= K[0, 2] <= size[0] and 0 <= K[1, 2] <= size[1] and 0.5 < K[0, 0] / K[1, 1] < 2):
+        return "the solve's principal point or aspect ratio cannot be right (a wrong start)"
+    return None
 
 
 class LiveSolve(BackgroundTier[tuple[int, list[Detections], tuple[int, int]]]):
