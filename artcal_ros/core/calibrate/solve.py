@@ -160,9 +160,7 @@ def solve(views: list[ViewPoints], image_size: tuple[int, int], model: str, *,
                     at.append(k)
             if len(sub) < 3 or sum(len(v) for v in sub) == sum(len(v) for v in views):
                 continue
-            stage_model, stage_options = (("plumb_bob", _first_stage(model, options))
-                                          if stage == 0 and model != "equidistant"
-                                          else (model, options))
+            stage_model, stage_options = _stage_model(stage, model, options)
             try:
                 initial, _ = _solve_once(sub, image_size, stage_model, options=stage_options,
                                          initial=initial, criteria=_START_CRITERIA)
@@ -220,6 +218,23 @@ def _checked(K: np.ndarray, dist: np.ndarray, rv: Any, tv: Any, model: str,
             "that tilt the board in different directions and fill the image corners")
     return Solution(K, dist, model, np.asarray(rv, np.float64).reshape(-1, 3),
                     np.asarray(tv, np.float64).reshape(-1, 3), free)
+
+
+def _stage_model(stage: int, model: str, options: SolveOptions) -> tuple[str, SolveOptions]:
+    """The model a stage of the outward-growing solve fits: plumb_bob k1 k2 first; the
+    rational model's k4-k6 are freed only on every point (the second stage fits k1-k3).
+
+    On the central points alone the rational model's numerator and denominator can grow a
+    common factor that fits them as well and bends the image corners by pixels; the final
+    fit, starting from k1-k3 with k4-k6 at zero, stays in the valley of the true lens.
+    """
+    if model == "equidistant":
+        return model, options
+    if stage == 0:
+        return "plumb_bob", _first_stage(model, options)
+    if model == "rational_polynomial":
+        return "plumb_bob", replace(options, k_coefficients=min(3, options.radial_terms(model)))
+    return model, options
 
 
 def _first_stage(model: str, options: SolveOptions) -> SolveOptions:
