@@ -31,6 +31,8 @@ def main(argv: list[str] | None = None) -> int:
         ("solve time", ["bench.solve_time", *quick]),
         ("real photographs", ["bench.real_photos", "--markdown"]),
         ("the paper's Table 2, Figure 5 and jitter", ["bench.paper", *quick]),
+        ("projection uncertainty against the truth", ["bench.uncertainty", *quick]),
+        ("next-pose guidance", ["bench.guidance", *quick]),
         # The real node over DDS; the full runs take ~10 minutes, --quick one short run.
         ("node under load", ["bench.node_load", *quick]),
     ]
