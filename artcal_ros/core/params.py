@@ -195,6 +195,10 @@ PARAMETERS: tuple[ParamSpec, ...] = (
               "The node is ready when min_views are collected and the projection uncertainty "
               "(1-sigma, RMS over the whole image, from the live solve) is at or below this, "
               "pixels.", check=_positive, allowed="a number of pixels > 0, e.g. 0.1"),
+    ParamSpec("report_dir", "",
+              "Where the node writes the report (report.pdf, its pages as PNG, summary.json) "
+              "after every successful solve; empty means ~/.ros/artcal/<camera_name>/report/.",
+              allowed="a directory path, or empty"),
     ParamSpec("overlay.max_width", 960,
               "Width the node's ~/overlay image is scaled down to at most, pixels (a 1080p bgr8 "
               "overlay is 6.2 MB a message, 1.6 MB at 960 px).",
@@ -405,6 +409,14 @@ def parse_override(text: str) -> tuple[str, Any]:
     except yaml.YAMLError:
         value = raw
     return key.strip(), value
+
+
+def report_path(params: Mapping[str, Any]) -> Path:
+    """The node's report directory: ``report_dir`` or ~/.ros/artcal/<camera_name>/report/."""
+    explicit = str(params.get("report_dir") or "")
+    if explicit:
+        return Path(os.path.expanduser(explicit))
+    return Path.home() / ".ros" / "artcal" / str(params.get("camera_name", "camera")) / "report"
 
 
 def output_path(params: Mapping[str, Any]) -> Path:

@@ -44,6 +44,7 @@ import sys
 import threading
 import time
 from dataclasses import replace
+from pathlib import Path
 from typing import Any
 
 import numpy as np
@@ -59,8 +60,14 @@ from sensor_msgs.srv import SetCameraInfo
 from std_srvs.srv import Trigger
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.calibrate.board_check import check_board
-from artcal_ros.core.calibrate.solve_run import SolveOutcome, SolveWorker, run_solve
+from artcal_ros.core.calibrate.board_check import BoardCheck, check_board
+from artcal_ros.core.calibrate.result import CalibrationResult
+from artcal_ros.core.calibrate.solve_run import (
+    SolveOutcome,
+    SolveWorker,
+    queue_report,
+    run_solve,
+)
 from artcal_ros.core.camera_info import as_camera_info
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
@@ -71,7 +78,7 @@ from artcal_ros.core.live.live_status import LiveStatus
 from artcal_ros.core.live.overlay import render_heat_map, render_overlay
 from artcal_ros.core.live.readiness import calibrate_readiness
 from artcal_ros.core.live.stream import LiveDetection
-from artcal_ros.core.params import PARAMETERS, ParamValue
+from artcal_ros.core.params import PARAMETERS, ParamValue, report_path
 from artcal_ros.ros import msgs
 from artcal_ros.ros.calibrator_common import (
     LATCHED_QOS,
@@ -344,10 +351,20 @@ class CalibratorNode(Node):
             self._last_board_check = check.text()
         if check.warning:
             self.get_logger().warning(f"board check: {check.warning}")
+        outcome = replace(outcome, message=f"{outcome.message}; report: "
+                          f"{self._queue_report(outcome.result, views, check)}")
         if self.params["commit"]:
             committed = self._commit(info, outcome)
             return committed if outcome.success else replace(committed, success=False)
         return outcome
+
+    def _queue_report(self, result: CalibrationResult, views: list[Detections],
+                      check: BoardCheck) -> Path:
+        log = self.get_logger()
+        return queue_report(self.solver, report_path(self.params), result, views, self.board,
+                            tone_curve=self.detector.tone.as_dict(),
+                            board_check=check.as_dict(), title=str(self.params["camera_name"]),
+                            said=lambda ok, text: log.info(text) if ok else log.warning(text))
 
     def _commit(self, info: CameraInfo, outcome: SolveOutcome) -> SolveOutcome:
         name = self.set_info_client.srv_name

@@ -9,11 +9,14 @@ solve exits promptly; bad parameters refuse start-up naming the parameter.
 
 from __future__ import annotations
 
+import json
+import re
 import time
 from collections.abc import Iterator
 from pathlib import Path
 from typing import Any
 
+import cv2
 import numpy as np
 import pytest
 import yaml
@@ -210,6 +213,7 @@ def fed(tmp_path_factory: pytest.TempPathFactory, probe: Probe,
     has finished the previous one (its overlay came back), so none is dropped as busy."""
     tmp = tmp_path_factory.mktemp("fed")
     node = calibrator(tmp, "cal_fed", "/fed/image", f"min_views:={FED_VIEWS}",
+                      f"report_dir:={tmp / 'report'}",
                       remaps=("set_camera_info:=/fake_camera/set_camera_info",),
                       per_test=False)
     overlay = probe.collect(Image, "/cal_fed/overlay", RELIABLE)
@@ -281,6 +285,17 @@ def test_both_qos_reach_the_node_and_broken_frames_are_skipped(
     assert warned and "broken frames skipped" in warned[0].message
     answer = probe.call(Trigger, "/cal_fed/calibrate", timeout=120)
     assert answer.success, answer.message
+    # The report is written on the solve thread after the answer, into report_dir.
+    report = Path(answer.message.rsplit("report: ", 1)[1].split(";")[0].strip())
+    assert report.name == "report" and report.parent.name.startswith("fed"), answer.message
+    wait_until(lambda: "report written" in fed.node.output(), 120, "the report to be written")
+    pdf = (report / "report.pdf").read_bytes()
+    pages = len(re.findall(rb"/Type\s*/Page(?![a-zA-Z])", pdf))
+    assert pdf.startswith(b"%PDF") and pages >= 6, pages
+    for png in ("verdict.png", "residuals.png", "uncertainty.png", "distortion.png"):
+        assert cv2.imread(str(report / png)) is not None, png
+    summary = json.loads((report / "summary.json").read_text())
+    assert summary["success"] and summary["projection_uncertainty_px"]["rms"] > 0
 
 
 def test_commit_sends_the_result_to_set_camera_info(fed: Fed, probe: Probe) -> None:
@@ -377,8 +392,6 @@ def test_sigint_during_a_solve_exits_promptly(fed: Fed, probe: Probe) -> None:
 
 
 def test_compressed_transport(tmp_path: Path, probe: Probe, bag: CalibrationBag) -> None:
-    import cv2
-
     from artcal_ros.core.images import image_to_numpy
 
     node = calibrator(tmp_path, "cal_jpeg", "/cj/image", "image_transport:=compressed")

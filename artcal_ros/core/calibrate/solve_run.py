@@ -23,7 +23,7 @@ from collections.abc import Callable, Iterable, Mapping, Sequence
 from concurrent.futures import Future, wait
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING, Any
+from typing import TYPE_CHECKING, Any, TypeVar
 
 import numpy as np
 
@@ -36,6 +36,8 @@ from artcal_ros.core.params import output_path
 if TYPE_CHECKING:
     from artcal_ros.core.calibrate.result import CalibrationResult
     from artcal_ros.core.detect import Detector
+
+T = TypeVar("T")
 
 
 class OutputError(ArtcalError):
@@ -183,8 +185,8 @@ class CancelledError(Exception):
 
 @dataclass(frozen=True)
 class _SolveJob:
-    future: Future[SolveRun]
-    solve: Callable[[], SolveRun]
+    future: Future[Any]
+    solve: Callable[[], Any]
 
 
 class SolveWorker:
@@ -221,6 +223,17 @@ class SolveWorker:
                 return future
             self._jobs.put(_SolveJob(future, lambda: solve_views(
                 views, board, image_size, params, progress=progress)))
+        return future
+
+    def submit_task(self, task: Callable[[], T]) -> Future[T]:
+        """Queue other work of a solve's (its report) behind the solves queued now, on the
+        same thread; its return value (or exception) comes back in the future."""
+        future: Future[T] = Future()
+        with self._lock:
+            if self._closed:
+                future.set_exception(CancelledError())
+                return future
+            self._jobs.put(_SolveJob(future, task))
         return future
 
     def _run(self) -> None:
@@ -296,3 +309,32 @@ def run_solve(views: Sequence[Detections], board: Board, image_size: tuple[int, 
     except Exception as e:
         return SolveOutcome(False, f"calibration failed: internal error: {e!r}")
     return SolveOutcome(True, solve_summary(run, readiness=readiness), run.result)
+
+
+def queue_report(worker: SolveWorker, directory: Path, result: CalibrationResult,
+                 views: Sequence[Detections], board: Board, *,
+                 tone_curve: Mapping[str, Any] | None, board_check: Mapping[str, Any] | None,
+                 title: str, said: Callable[[bool, str], object]) -> Path:
+    """Write a solve's report into ``directory`` on the solve thread, behind the solves
+    queued now (its plots take seconds: the caller answers first).
+
+    ``said`` is called on that thread with (True, where it is) once written, or (False,
+    why not); not at all when the worker closes first. Returns ``directory``.
+    """
+    from artcal_ros.core.calibrate.report import write_report
+
+    def write() -> list[Path]:
+        return write_report(directory, result, tone_curve=tone_curve, board_check=board_check,
+                            detections=list(views), board=board, title=title)
+
+    def written(future: Future[list[Path]]) -> None:
+        error = None if future.cancelled() else future.exception()
+        if future.cancelled() or isinstance(error, CancelledError):
+            return
+        if error is None:
+            said(True, f"report written: {directory / 'report.pdf'}")
+        else:
+            said(False, f"no report in {directory}: {error}")
+
+    worker.submit_task(write).add_done_callback(written)
+    return directory
