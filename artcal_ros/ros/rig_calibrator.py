@@ -24,8 +24,9 @@ from __future__ import annotations
 
 import threading
 import time
-from concurrent.futures import CancelledError
+from concurrent.futures import CancelledError, Future
 from functools import partial
+from pathlib import Path
 from typing import Any
 
 from diagnostic_msgs.msg import DiagnosticArray
@@ -48,7 +49,7 @@ from artcal_ros.core.images.compressed import compressed_to_numpy
 from artcal_ros.core.live.overlay import render_overlay
 from artcal_ros.core.live.rig_stream import RigStream
 from artcal_ros.core.live.rig_views import RigSnapshot, RigViews, RigViewsConfig
-from artcal_ros.core.params import ParamValue, output_path
+from artcal_ros.core.params import ParamValue, output_path, report_path
 from artcal_ros.ros import msgs
 from artcal_ros.ros.calibrator_common import (
     LATCHED_QOS,
@@ -270,7 +271,7 @@ class RigCalibratorNode(Node):
             return False, str(e)
         except CancelledError:
             return False, "the rig solve was cancelled (the node is stopping)"
-        message = self._publish(rig)
+        message = self._publish(rig) + f"\nreport: {self._queue_report(rig, snap)}"
         if not waited:
             message += f" ({self.views.pending} rig views still in detection were left out)"
         self.last_summary = message.splitlines()[0]
@@ -314,6 +315,28 @@ class RigCalibratorNode(Node):
         for w in warnings:
             self.get_logger().warning(w)
         return "\n".join([*rig.summary().splitlines()[:len(rig.names)], where])
+
+    def _queue_report(self, rig: RigResult, snap: RigSnapshot) -> Path:
+        """The rig's report into report_dir on the rig stream's worker, after the answer;
+        logged when written, or why not. Returns the directory."""
+        from artcal_ros.core.calibrate.rig_report import write_rig_report
+
+        directory, log = report_path(self.params), self.get_logger()
+
+        def written(future: Future[Any]) -> None:
+            error = None if future.cancelled() else future.exception()
+            if future.cancelled() or isinstance(error, (CancelledError, RuntimeError)):
+                return  # the node is stopping
+            if error is None:
+                log.info(f"report written: {directory / 'report.pdf'}")
+            else:
+                log.warning(f"no report in {directory}: {error}")
+
+        self.stream.submit(partial(
+            write_rig_report, directory, rig, snap.detections(), self.board,
+            str(self.params["points"]), summary={"success": True, **rig.to_summary_dict()}),
+        ).add_done_callback(written)
+        return directory
 
     def _commit(self, rig: RigResult, message: str) -> tuple[bool, str]:
         results = []

@@ -9,6 +9,7 @@ camera name alone is refused at start-up, naming the parameter.
 
 from __future__ import annotations
 
+import json
 import re
 import threading
 import time
@@ -161,7 +162,7 @@ def test_stereo_stream_calibrates_the_rig(tmp_path: Path, probe: Probe,
     services = [probe.node.create_service(SetCameraInfo, f"/{n}/set_camera_info",
                                           partial(serve, n)) for n in committed]
     node = rig_node(tmp_path, "rigcal", "cameras:=[left,right]", f"min_views:={MIN_VIEWS}",
-                    "commit:=true")
+                    "commit:=true", f"report_dir:={tmp_path / 'report'}")
     try:
         answer = calibrate_until_success(probe, "/rigcal/calibrate", timeout=80.0)
     finally:
@@ -206,6 +207,12 @@ def test_stereo_stream_calibrates_the_rig(tmp_path: Path, probe: Probe,
     # "cleared N rig views": every view of the solve at least (the stream goes on)
     assert cleared.success and int(cleared.message.split()[1]) >= int(rig), cleared.message
     assert node.running()
+    # the rig's report, written after the answer into report_dir
+    assert f"report: {tmp_path / 'report'}" in answer.message, answer.message
+    wait_until(lambda: "report written" in node.output(), 120.0, "the rig's report")
+    assert (tmp_path / "report" / "report.pdf").read_bytes().startswith(b"%PDF")
+    summary = json.loads((tmp_path / "report" / "summary.json").read_text())
+    assert summary["extrinsics"][0]["from"] == "left", summary.keys()
     assert "Traceback" not in node.output()
     print(f"stereo node: calibrated in {time.monotonic() - t0:.1f} s, baseline "
           f"{baseline:.5f} m")
