@@ -1,6 +1,6 @@
 """The README's picture of the live overlay with the next-pose outline.
 
-    python -m bench.readme_images          # writes docs/img/overlay_next_pose.png
+    python -m bench.readme_images          # writes docs/img/overlay_next_pose.jpg
 
 Six rendered webcam views of the default board are collected and solved as the node's live
 solve does; the seventh frame is drawn as the node's ~/overlay, with the outline of where
@@ -24,7 +24,7 @@ from artcal_ros.core.live.live_solve import LiveSolver
 from artcal_ros.core.live.overlay import draw_next_pose, render_overlay
 from artcal_ros.synth import Camera, Photometry, random_poses, render_view
 
-OUT = Path(__file__).resolve().parents[1] / "docs" / "img" / "overlay_next_pose.png"
+OUT = Path(__file__).resolve().parents[1] / "docs" / "img" / "overlay_next_pose.jpg"
 
 
 def overlay_pictures(seed: int = 11, width: int = 640) -> np.ndarray:
@@ -70,11 +70,11 @@ def overlay_pictures(seed: int = 11, width: int = 640) -> np.ndarray:
 
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.readme_images", description=__doc__)
-    parser.add_argument("--out", default=str(OUT), help="the PNG to write")
+    parser.add_argument("--out", default=str(OUT), help="the JPEG to write")
     parser.add_argument("--seed", type=int, default=11, help="the rendered session's seed")
     args = parser.parse_args(argv)
     picture = overlay_pictures(args.seed)
-    cv2.imwrite(args.out, picture, [cv2.IMWRITE_PNG_COMPRESSION, 9])
+    cv2.imwrite(args.out, picture, [cv2.IMWRITE_JPEG_QUALITY, 88])
     print(f"wrote {args.out} ({picture.shape[1]}x{picture.shape[0]})")
     return 0
 
