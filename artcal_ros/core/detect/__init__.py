@@ -10,8 +10,9 @@ the sides read by ``profiles``) -> ``verify`` -> ``centers``. All of them read
 pixels through ``sampling``; ``patterns`` holds what the board prints, ``lens``
 the lens models, ``tone`` the tone curve (estimated from the edge fits), ``edge_shift``
 the per-view edge shift removed from the corners; ``exposure`` says whether a frame is
-clipped or partly saturated, and ``grid_search`` looks for the markers of a clipped frame
-where the board's layout puts them. The hot loops are numba
+clipped or partly saturated, ``grid_search`` looks for the markers of a clipped frame
+where the board's layout puts them, and ``rim`` reads again, through the lens, the quads a
+strong lens distorts too much to decode. The hot loops are numba
 kernels (compiled on first use and cached on disk); ``linalg`` has their small
 solves, ``workers`` the threads the model fit runs on (``ARTCAL_THREADS``, default 2).
 ``frames`` detects a recording's frames on worker processes (offline, every frame).
@@ -29,7 +30,7 @@ test/unit/test_layout.py checks both::
 
     0  frames
     1  detector
-    2  candidates   grid_search   chessboard   charuco   circles
+    2  candidates   grid_search   rim   chessboard   charuco   circles
     3  decode   edges   exposure   verify   circle_grid
     4  plumb    centers
     5  sides

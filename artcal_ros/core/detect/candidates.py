@@ -57,7 +57,10 @@ class CandidateFinder:
         self.decode_rejected = decode_rejected
         self.min_side_px = min_side_px
         self._aruco = _aruco_detector(board, adaptive_window_max)
-        self._patterns = PatternTable(board, any_polarity=board.polarity == "any")
+        self.patterns = PatternTable(board, any_polarity=board.polarity == "any")
+        # the last image's quads that read almost as a marker (first pass only), for a
+        # second read through the lens (:mod:`.rim`)
+        self.near_misses: np.ndarray = np.zeros((0, 4, 2))
         self.clipped_patterns = PatternTable(board, any_polarity=board.polarity == "any",
                                               clipped=True)
 
@@ -68,6 +71,7 @@ class CandidateFinder:
             gray8: (H, W) uint8 image for the quad finder.
             lin: (H, W) float32 linear intensity of the same image.
         """
+        self.near_misses = np.zeros((0, 4, 2))
         quads, ids = self._pass(gray8, lin)
         bright = saturation_image(gray8)
         if bright is not None:
@@ -99,7 +103,7 @@ class CandidateFinder:
         on_board = (ids >= self.board.first_id) & (ids <= int(self.board.ids[-1]))
         quads, ids = quads[on_board], ids[on_board]
         if self.decode_rejected and rejected is not None and len(rejected):
-            dq, dids = self._decode_rejected(lin, rejected, patterns or self._patterns)
+            dq, dids = self._decode_rejected(lin, rejected, patterns or self.patterns)
             new = ~np.isin(dids, ids)
             quads = np.concatenate([quads, dq[new]])
             ids = np.concatenate([ids, dids[new]])
@@ -121,6 +125,8 @@ class CandidateFinder:
         # corners misplace the code cells of small or blurred markers)
         near = (err > 2) & (err <= 10)
         near[taken] = False
+        if patterns is self.patterns:
+            self.near_misses = rq[near]
         if near.any():
             nq = rq[near]
             dark = border_is_dark(lin, nq, self.board.bits)

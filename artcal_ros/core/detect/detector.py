@@ -10,8 +10,10 @@ The stages of one image, in :meth:`Detector.detect`'s order:
    (given, or estimated and pooled over frames), intersected into corners (:mod:`.edges`);
    the tone curve is probed on the same fits (:mod:`.tone`);
 4. verification: code, neighbours and sides re-read on the refined quad, so a wrong id
-   cannot reach the solver (:mod:`.verify`); a clipped frame's missing markers looked for
-   where the verified ones place them (:mod:`.grid_search`);
+   cannot reach the solver (:mod:`.verify`; through the lens when the image fails); the
+   quad finder's near misses a strong lens distorts read again through it (:mod:`.rim`); a
+   clipped frame's missing markers looked for where the verified ones place them
+   (:mod:`.grid_search`);
 5. centres, the diagonals' crossing through the lens (:mod:`.centers`), and the view's edge
    shift removed from the corners (:mod:`.edge_shift`).
 
@@ -38,23 +40,23 @@ from artcal_ros.core.detect.charuco import charuco_corners
 from artcal_ros.core.detect.chessboard import detect_chessboard
 from artcal_ros.core.detect.circles import detect_circles
 from artcal_ros.core.detect.edge_shift import remove_view_shift
-from artcal_ros.core.detect.edges import EdgeFit, ProbeFit, refine_quads, same_edges
+from artcal_ros.core.detect.edges import EdgeFit, refine_quads, same_edges
 from artcal_ros.core.detect.exposure import censor_level, dark_level, is_clipped, saturates
 from artcal_ros.core.detect.grid_search import grow
 from artcal_ros.core.detect.image import to_gray, to_gray8
 from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool, LensPoolState, known_lens
 from artcal_ros.core.detect.patterns import inner_border_cells, outer_neighbours
+from artcal_ros.core.detect.rim import read_through_lens
 from artcal_ros.core.detect.sampling import border_is_dark
 from artcal_ros.core.detect.tone import (
-    CANDIDATES,
     ToneCurve,
     ToneEstimate,
     TonePool,
+    ToneProbe,
     ToneState,
     differs,
-    probe_costs,
 )
-from artcal_ros.core.detect.verify import code_errors, neighbour_support, sides_are_edges
+from artcal_ros.core.detect.verify import checks_pass
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import DetectionError
 
@@ -139,33 +141,6 @@ _CENSOR_BELOW = 0.85
 # reads above this share of saturation, where blooming eats into the edges; below it the
 # censored fit holds the edges and the sides' scatter is the frame's noise
 _PLACE_ABOVE = 0.35
-
-# most pilot sides a frame's tone probe re-fits per candidate curve
-_PROBE_SIDES = 16
-
-
-class _ToneProbe:
-    """Keeps the last fit :func:`refine_quads` offers; :meth:`commit` probes it into the pool."""
-
-    def __init__(self, pool: TonePool, curve: ToneCurve) -> None:
-        self.pool, self.curve = pool, curve
-        self.last: ProbeFit | None = None
-
-    def __call__(self, fit: ProbeFit) -> None:
-        self.last = fit
-
-    def commit(self) -> None:
-        """The candidate curves' costs on the kept fit's sides, added to the pool."""
-        if self.last is None:
-            return
-        fit, self.last = self.last, None
-        pick = np.linspace(0, len(fit.sides) - 1, min(len(fit.sides), _PROBE_SIDES))
-        sides = fit.sides[pick.astype(int)]
-        fit_values, values = fit.subset(sides, copies=len(CANDIDATES))
-        costs, sound = probe_costs(fit_values, values, sides, self.curve, fit.coef, fit.blur)
-        counts = np.bincount(np.asarray(fit.samples.side), minlength=len(fit.coef))[sides]
-        self.pool.add(costs, int(counts[sound].sum()), int(sound.sum()))
-
 
 def _clear_of_edge(corners: np.ndarray, w: int, h: int, clear: float) -> np.ndarray:
     """(M,) bool: all four corners at least ``clear`` pixels inside the image."""
@@ -292,12 +267,12 @@ class Detector:
             return ToneEstimate(ToneCurve("power", self.config.gamma), 0.0, False)
         return self._tone_pool.estimate()
 
-    def _probe(self, curve: ToneCurve) -> _ToneProbe:
+    def _probe(self, curve: ToneCurve) -> ToneProbe:
         """A ``tone_probe`` for :func:`refine_quads` that adds a frame to the pool."""
-        return _ToneProbe(self._tone_pool, curve)
+        return ToneProbe(self._tone_pool, curve)
 
     def _refine(self, lin: np.ndarray, quads: np.ndarray, dark: np.ndarray, ids: np.ndarray,
-                lens: Lens | None, probe: _ToneProbe | None, censor_at: float | None = None,
+                lens: Lens | None, probe: ToneProbe | None, censor_at: float | None = None,
                 pool: bool = True) -> EdgeFit:
         """The edge fit of every quad (:func:`refine_quads` with this detector's settings;
         ``censor_at``: samples at or above this linear level are censored; ``pool``: the
@@ -354,7 +329,9 @@ class Detector:
             edges = self._fit_edges(edges, quads, exposure)
         frame = edges.frame
         # 4. verification, and a clipped frame's missing markers looked for on the grid
-        markers, rejected = self._verify(frame.lin, edges.markers, edges.dark, exposure.clipped)
+        markers, rejected = self._verify(frame.lin, edges, exposure.clipped)
+        if edges.lens is not None and self.config.refine_edges:
+            markers = self._rim(frame.lin, markers, edges, exposure.clipped)
         if (exposure.clipped and self.config.grid_search and self.config.refine_edges
                 and self.board.board_type == "marker_grid"):
             markers = self._grid_search(frame.lin, markers, rejected, edges)
@@ -441,21 +418,43 @@ class Detector:
                            fit.corner_sigma_px[keep])
         return _Edges(frame, markers, dark[keep], lens, fit.lens, censor_at)
 
-    def _verify(self, lin: np.ndarray, markers: _Markers, dark: np.ndarray, clipped: bool
+    def _verify(self, lin: np.ndarray, edges: _Edges, clipped: bool
                 ) -> tuple[_Markers, tuple[np.ndarray, np.ndarray]]:
         """The markers whose code, neighbours and sides check out, and the rest's corners
-        (R, 4, 2) and ids (R,)."""
-        ids, corners = markers.ids, markers.corners_px
-        errors = code_errors(lin, corners, dark, ids, self.board)
-        support = neighbour_support(corners, ids, self.board, self.config.neighbour_tolerance,
-                                    self._grow_to)
-        ok = (errors <= self.config.max_bit_errors) & (support > 0)
-        if self.config.max_bit_errors_isolated is not None:
-            ok |= (support == 0) & (errors <= self.config.max_bit_errors_isolated)
-        ok &= support >= 0
-        ok &= sides_are_edges(lin, corners, dark, self.board.bits, clipped=clipped)
+        (R, 4, 2) and ids (R,). A marker that fails in the image is read again through the
+        edge fit's lens: far out in a strong lens a marker's homography no longer predicts
+        its neighbours nor its border's modules, in straightened pixels it does."""
+        markers, ids, check = edges.markers, edges.markers.ids, self._checks(clipped)
+        corners = markers.corners_px
+        ok = checks_pass(lin, corners, edges.dark, ids, self.board, **check)
+        if edges.lens is not None and not ok.all():
+            ok |= checks_pass(lin, corners, edges.dark, ids, self.board, lens=edges.lens, **check)
         return (_Markers(ids[ok], corners[ok], markers.sigma_px[ok]),
                 (corners[~ok], ids[~ok]))
+
+    def _checks(self, clipped: bool) -> dict[str, Any]:
+        """This detector's settings of :func:`checks_pass`."""
+        c = self.config
+        return dict(max_bit_errors=c.max_bit_errors, tolerance=c.neighbour_tolerance,
+                    max_bit_errors_isolated=c.max_bit_errors_isolated, grow_to=self._grow_to,
+                    clipped=clipped)
+
+    def _rim(self, lin: np.ndarray, markers: _Markers, edges: _Edges, clipped: bool
+             ) -> _Markers:
+        """The quad finder's near misses that the lens bends, read through it (:mod:`.rim`)
+        and verified together with the markers already found."""
+        assert self._candidates is not None
+        n, lens, cat = len(markers.ids), edges.lens, np.concatenate
+
+        def keep(c: np.ndarray, i: np.ndarray) -> np.ndarray:
+            ids = cat([markers.ids, i])
+            return checks_pass(lin, cat([markers.corners_px, c]), self._dark(ids), ids,
+                               self.board, lens=lens, **self._checks(clipped))[n:]
+        found = read_through_lens(
+            lin, lens, self._candidates.near_misses, markers.ids, self._candidates.patterns,
+            self.board.bits, lambda q, i: self._refine(lin, q, self._dark(i), i, lens, None,
+                                                        edges.censor_at, pool=False), keep)
+        return _Markers(*(cat([a, b]) for a, b in zip(markers, found, strict=True)))
 
     def _grid_search(self, lin: np.ndarray, markers: _Markers,
                      rejected: tuple[np.ndarray, np.ndarray], edges: _Edges) -> _Markers:

@@ -32,6 +32,7 @@ from __future__ import annotations
 from collections.abc import Callable
 from dataclasses import dataclass
 from functools import lru_cache
+from typing import Any
 
 import numpy as np
 
@@ -344,3 +345,31 @@ def probe_costs(fit_values: Callable[..., None], values: np.ndarray, sides: np.n
                blur0=np.tile(blur[sides], n_cand), cost_out=cost, contrast_out=contrast)
     sound = sound_sides(contrast.reshape(n_cand, f))
     return cost.reshape(n_cand, f)[:, sound].sum(axis=1), sound
+
+
+# most pilot sides a frame's tone probe re-fits per candidate curve
+_PROBE_SIDES = 16
+
+
+class ToneProbe:
+    """Keeps the last fit :func:`~artcal_ros.core.detect.edges.refine_quads` offers (a
+    :class:`~artcal_ros.core.detect.edges.ProbeFit`); :meth:`commit` probes it into the pool."""
+
+    def __init__(self, pool: TonePool, curve: ToneCurve) -> None:
+        self.pool, self.curve = pool, curve
+        self.last: Any = None
+
+    def __call__(self, fit: Any) -> None:
+        self.last = fit
+
+    def commit(self) -> None:
+        """The candidate curves' costs on the kept fit's sides, added to the pool."""
+        if self.last is None:
+            return
+        fit, self.last = self.last, None
+        pick = np.linspace(0, len(fit.sides) - 1, min(len(fit.sides), _PROBE_SIDES))
+        sides = fit.sides[pick.astype(int)]
+        fit_values, values = fit.subset(sides, copies=len(CANDIDATES))
+        costs, sound = probe_costs(fit_values, values, sides, self.curve, fit.coef, fit.blur)
+        counts = np.bincount(np.asarray(fit.samples.side), minlength=len(fit.coef))[sides]
+        self.pool.add(costs, int(counts[sound].sum()), int(sound.sum()))

@@ -8,9 +8,15 @@ homography puts them on the board (:func:`neighbour_support`), and (d) every
 refined side reads as the border's outer edge, in view (:func:`sides_are_edges`).
 A false decode in clutter fails (b) or (c); a wrong id inside the board fails
 (c); a marker running off the image fails (d).
+
+With a lens (a known camera or the frame's estimate) the checks can be read through it:
+the homographies then map the board into straightened pixels, where a strongly distorted
+marker and its neighbours are projective again (:func:`checks_pass`).
 """
 
 from __future__ import annotations
+
+from typing import Any
 
 import numpy as np
 
@@ -18,12 +24,13 @@ from artcal_ros.core.board import Board
 from artcal_ros.core.detect.centers import diagonal_centers
 from artcal_ros.core.detect.linalg import nanmedian_rows
 from artcal_ros.core.detect.patterns import blurred_patterns
-from artcal_ros.core.detect.sampling import bilinear, cell_means, module_grid
+from artcal_ros.core.detect.sampling import bilinear, module_grid
 from artcal_ros.core.homography import apply_h, homographies, module_homographies, shortest_sides
 
 
 def sides_are_edges(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, bits: int,
-                    min_share: float = 0.5, *, clipped: bool = False) -> np.ndarray:
+                    min_share: float = 0.5, *, clipped: bool = False,
+                    lens: Any = None) -> np.ndarray:
     """(M,) bool: every refined side lies on the border's outer edge, in view.
 
     Half a module inside each side must read as the border and half a module
@@ -44,13 +51,15 @@ def sides_are_edges(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, bits
             into a dark border from both of its edges, by a different part of a pixel on
             each side, and can leave only a thin dark core away from the module's middle,
             whose contrast then differs from side to side by a factor of two or three.
+        lens: read the module positions through this lens (``undistort``/``distort`` in
+            pixels); None: a homography in the image.
     """
     M = len(corners)
     if M == 0:
         return np.zeros(0, dtype=bool)
     h, w = lin.shape
     n = bits + 2.0
-    H = module_homographies(corners, bits)
+    H = module_homographies(_straightened(corners, lens), bits)
     s = np.linspace(1.5, n - 1.5, 3 * bits)
     # sides in corner order: top (y = 0), right (x = n), bottom (y = n), left (x = 0)
     fixed = np.array([0.0, n, n, 0.0])
@@ -68,14 +77,14 @@ def sides_are_edges(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, bits
         for depth in depths:
             c = np.full_like(s, fixed[k] + depth * inward[k])
             inner = np.c_[s, c] if horizontal[k] else np.c_[c, s]
-            pin = apply_h(H, np.broadcast_to(inner, (M, *inner.shape)))
+            pin = _to_image(apply_h(H, np.broadcast_to(inner, (M, *inner.shape))), lens)
             reads.append(bilinear(lin, pin[..., 0], pin[..., 1]))
         border_read = reads[0] if len(reads) == 1 else np.where(
             dark[:, None], np.minimum.reduce(reads), np.maximum.reduce(reads))
         c_out = np.repeat((fixed[k] - out_mod * inward[k])[:, None], len(s), axis=1)
         s_b = np.broadcast_to(s, c_out.shape)
         outer = np.stack([s_b, c_out] if horizontal[k] else [c_out, s_b], axis=-1)
-        pout = apply_h(H, outer)
+        pout = _to_image(apply_h(H, outer), lens)
         on = ((pout[..., 0] >= 0) & (pout[..., 0] <= w - 1) & (pout[..., 1] >= 0)
               & (pout[..., 1] <= h - 1))
         seen[:, k] = on.mean(axis=1)
@@ -90,7 +99,7 @@ def sides_are_edges(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, bits
 
 
 def code_errors(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, ids: np.ndarray,
-                board: Board) -> np.ndarray:
+                board: Board, lens: Any = None) -> np.ndarray:
     """(M,) int: modules (border and code) whose brightness disagrees with the id's pattern.
 
     Each module is read as the mean of 3 x 3 samples in its central half and
@@ -106,13 +115,16 @@ def code_errors(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, ids: np.
             fitted contrast's sign carries the polarity).
         ids: (M,) marker ids.
         board: the calibration board.
+        lens: read the modules through this lens (see :func:`sides_are_edges`).
     """
     M = len(ids)
     if M == 0:
         return np.zeros(0, dtype=np.intp)
     n = board.bits + 2
-    H = module_homographies(corners, board.bits)
-    vals = cell_means(lin, H, module_grid(n, 0.25))  # (M, n*n)
+    H = module_homographies(_straightened(corners, lens), board.bits)
+    grid = module_grid(n, 0.25)
+    pts = _to_image(apply_h(H, np.broadcast_to(grid, (M, *grid.shape))), lens)
+    vals = bilinear(lin, pts[..., 0], pts[..., 1]).reshape(M, n * n, 9).mean(axis=2)
     printed = np.stack([board.marker_modules(int(i)) for i in ids])
     expected = blurred_patterns(printed)  # (M, L, n*n), 1 = white
     # fit vals ~ alpha + beta * expected per blur level; keep the best level
@@ -131,7 +143,8 @@ def code_errors(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, ids: np.
 
 
 def neighbour_support(corners: np.ndarray, ids: np.ndarray, board: Board,
-                      tolerance: float, grow_to: float | None = None) -> np.ndarray:
+                      tolerance: float, grow_to: float | None = None, lens: Any = None
+                      ) -> np.ndarray:
     """(M,) int: how many image neighbours confirm each marker's position on the board.
 
     Each marker's homography (board plane -> image, from its own four corners)
@@ -152,10 +165,12 @@ def neighbour_support(corners: np.ndarray, ids: np.ndarray, board: Board,
             ``(board distance / (4/3 marker sides))^2``, up to ``grow_to`` marker sides
             (keep it below half the distance of the nearest other marker position, so a
             wrong id still contradicts).
+        lens: compare in this lens's straightened pixels (see :func:`sides_are_edges`).
     """
     M = len(ids)
     if M == 0:
         return np.zeros(0, dtype=np.intp)
+    corners = _straightened(corners, lens)
     obj = board.object_corners(ids)[:, :, :2]
     H = homographies(obj, corners)
     centers_img = corners.mean(axis=1)
@@ -177,6 +192,49 @@ def neighbour_support(corners: np.ndarray, ids: np.ndarray, board: Board,
     out = agree.astype(np.intp)
     out[(disagree > 0) & (disagree >= agree)] = -1
     return out
+
+
+def checks_pass(lin: np.ndarray, corners: np.ndarray, dark: np.ndarray, ids: np.ndarray,
+                board: Board, *, max_bit_errors: int, max_bit_errors_isolated: int | None,
+                tolerance: float, grow_to: float | None, clipped: bool,
+                lens: Any = None) -> np.ndarray:
+    """(M,) bool: code, neighbours and sides check out (module docstring (b)-(d)).
+
+    A marker with neighbours may miss ``max_bit_errors`` code cells, an isolated one
+    ``max_bit_errors_isolated`` (None: isolated markers fail); ``tolerance``, ``grow_to``
+    as in :func:`neighbour_support`, ``clipped`` and ``lens`` as in :func:`sides_are_edges`.
+    """
+    errors = code_errors(lin, corners, dark, ids, board, lens)
+    support = neighbour_support(corners, ids, board, tolerance, grow_to, lens)
+    ok = (errors <= max_bit_errors) & (support > 0)
+    if max_bit_errors_isolated is not None:
+        ok |= (support == 0) & (errors <= max_bit_errors_isolated)
+    ok &= support >= 0
+    ok &= sides_are_edges(lin, corners, dark, board.bits, clipped=clipped, lens=lens)
+    return np.asarray(ok)
+
+
+def _straightened(corners: np.ndarray, lens: Any) -> np.ndarray:
+    """Corners (M, 4, 2) in ``lens``'s straightened pixels (as given without a lens); NaN
+    where a division lens folds, so those markers read as nothing."""
+    if lens is None or len(corners) == 0:
+        return corners
+    flat = corners.reshape(-1, 2)
+    out = np.asarray(lens.undistort(flat), dtype=np.float64)
+    if hasattr(lens, "one_to_one"):
+        out = np.where(lens.one_to_one(flat)[:, None], out, np.nan)
+    return out.reshape(corners.shape)
+
+
+def _to_image(pts: np.ndarray, lens: Any) -> np.ndarray:
+    """Straightened points (..., 2) back to image pixels (as given without a lens)."""
+    if lens is None:
+        return pts
+    flat = np.asarray(pts, dtype=np.float64).reshape(-1, 2)
+    ok = np.isfinite(flat).all(axis=1)
+    out = np.full_like(flat, np.nan)
+    out[ok] = lens.distort(flat[ok])
+    return out.reshape(pts.shape)
 
 
 def _quad_area(q: np.ndarray) -> np.ndarray:
