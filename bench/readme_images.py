@@ -22,8 +22,10 @@ from artcal_ros.core.live.coverage import CoverageConfig, ViewCollector
 from artcal_ros.core.live.guidance import next_pose, pose_match
 from artcal_ros.core.live.live_solve import LiveSolver
 from artcal_ros.core.live.overlay import draw_next_pose, render_overlay
+from artcal_ros.core.live.readiness import live_readiness
 from artcal_ros.synth import Camera, Photometry, random_poses, render_view
 
+MAX_UNCERTAINTY_PX = 0.1  # readiness.max_uncertainty's default
 OUT = Path(__file__).resolve().parents[1] / "docs" / "img" / "overlay_next_pose.jpg"
 
 
@@ -53,7 +55,8 @@ def overlay_pictures(seed: int = 11, width: int = 640) -> np.ndarray:
                         rng=rng)
     shown = []
     for image, dets in (frames[6], (there.image, detector.detect(there.image))):
-        overlay = render_overlay(image, dets, snap.counts, snap.readiness, max_width=width)
+        readiness = live_readiness(snap.readiness, estimate, MAX_UNCERTAINTY_PX)
+        overlay = render_overlay(image, dets, snap.counts, readiness, max_width=width)
         match = pose_match(suggestion, dets.corners_px) if len(dets) else 0.0
         draw_next_pose(overlay, suggestion, zoom=overlay.shape[1] / image.shape[1],
                        match=match)
