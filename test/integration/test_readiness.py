@@ -102,7 +102,7 @@ def test_calibrate_says_how_far_from_ready(tmp_path: Path, probe: Probe,
     finally:
         replay.stop()
     assert values["ready"] == "false"
-    assert "projection uncertainty" in values["missing"] and "needs <= 0.00 px" in \
+    assert "projection uncertainty" in values["missing"] and "needs <= 0.0001 px" in \
         values["missing"], values["missing"]
     answer = probe.call(Trigger, "/cal_far/calibrate", timeout=120)
     assert answer.success, answer.message

@@ -110,7 +110,7 @@ def test_readiness_follows_the_uncertainty() -> None:
     u = est.uncertainty_rms_px
     strict = live_readiness(snap.readiness, est, 0.5 * u)
     assert not strict.ready
-    assert f"projection uncertainty {u:.2f} px, needs <= {0.5 * u:.2f} px" in strict.missing
+    assert f"projection uncertainty {u:.3g} px, needs <= {0.5 * u:.3g} px" in strict.missing
     assert live_readiness(snap.readiness, est, 2 * u).ready
     few = replace(snap.readiness, views=5)
     assert live_readiness(few, est, 2 * u).missing == ("3 more views",)

@@ -41,8 +41,8 @@ def live_readiness(collection: Readiness, estimate: LiveEstimate | None,
                        + (f", needs {MIN_VIEWS} to solve)" if n < MIN_VIEWS else ", solving)"))
         missing += hints
     elif estimate.uncertainty_rms_px > max_uncertainty_px:
-        missing.append(f"projection uncertainty {estimate.uncertainty_rms_px:.2f} px, needs "
-                       f"<= {max_uncertainty_px:.2f} px")
+        missing.append(f"projection uncertainty {estimate.uncertainty_rms_px:.3g} px, needs "
+                       f"<= {max_uncertainty_px:.3g} px")
         missing += hints
     elif estimate.collected < needed <= n:
         missing.append(f"projection uncertainty of all {n} views (solving)")
@@ -70,10 +70,10 @@ def calibrate_readiness(uncertainty_rms_px: float, views: int, min_views: int,
     if views < min_views:
         short.append(f"{min_views - views} more views")
     if not uncertainty_rms_px <= max_uncertainty_px:
-        short.append(f"projection uncertainty {uncertainty_rms_px:.3f} px, needs <= "
-                     f"{max_uncertainty_px:.3f} px: "
+        short.append(f"projection uncertainty {uncertainty_rms_px:.3g} px, needs <= "
+                     f"{max_uncertainty_px:.3g} px: "
                      f"{uncertainty_rms_px / max_uncertainty_px:.1f} x the bound")
     if not short:
-        return (f"ready: projection uncertainty {uncertainty_rms_px:.3f} px <= "
-                f"{max_uncertainty_px:.3f} px")
+        return (f"ready: projection uncertainty {uncertainty_rms_px:.3g} px <= "
+                f"{max_uncertainty_px:.3g} px")
     return "not ready yet: " + "; ".join(short) + " (add views where 'next pose' says)"
