@@ -26,8 +26,10 @@ __all__ = ["BEND_MODULES", "bent", "read_through_lens"]
 
 # modules moved by this share of a module against a homography: cells read off their middle
 BEND_MODULES = 0.25
-# straightened pixels resampled around the quads, beyond their bounding box
-_PAD_PX = 4
+# pixels resampled around each quad, beyond its bounding box
+_PAD_PX = 6
+# spacing of the knots where the lens's map is evaluated exactly, straightened pixels
+_STEP_PX = 4
 
 
 def bent(quads: np.ndarray, lens: Any, bits: int) -> np.ndarray:
@@ -52,24 +54,44 @@ def bent(quads: np.ndarray, lens: Any, bits: int) -> np.ndarray:
 def _decode_straightened(lin: np.ndarray, quads: np.ndarray, lens: Any,
                          patterns: PatternTable) -> tuple[np.ndarray, np.ndarray]:
     """Quads (D, 4, 2) in image pixels, board corner order, and ids (D,) of ``quads`` read
-    in the lens's straightened pixels."""
-    straight = np.asarray(lens.undistort(quads.reshape(-1, 2)), dtype=np.float64)
+    in the lens's straightened pixels.
+
+    Each quad is resampled side by side into one strip, scaled to the perimeter it has in
+    the image (a straightened marker is a projective square at any scale; far out in a
+    strong lens its straightened image is many times its size in the image).
+    """
+    straight: np.ndarray = np.asarray(lens.undistort(quads.reshape(-1, 2)), np.float64)
+    straight = straight.reshape(-1, 4, 2)
+    ok = np.isfinite(straight).all(axis=(1, 2))
     if hasattr(lens, "one_to_one"):
-        inside = lens.one_to_one(quads.reshape(-1, 2)).reshape(-1, 4).all(axis=1)
-        straight = straight.reshape(-1, 4, 2)[inside].reshape(-1, 2)
-    if len(straight) == 0 or not np.isfinite(straight).all():
+        ok &= lens.one_to_one(quads.reshape(-1, 2)).reshape(-1, 4).all(axis=1)
+    quads, straight = quads[ok], straight[ok]
+    if len(quads) == 0:
         return np.zeros((0, 4, 2)), np.zeros(0, dtype=np.int64)
-    x0, y0 = np.floor(straight.min(axis=0)).astype(int) - _PAD_PX
-    x1, y1 = np.ceil(straight.max(axis=0)).astype(int) + _PAD_PX
-    yy, xx = np.mgrid[y0:y1 + 1, x0:x1 + 1].astype(np.float64)
-    src = np.asarray(lens.distort(np.c_[xx.ravel(), yy.ravel()]), dtype=np.float32)
-    src = src.reshape(*xx.shape, 2)
-    patch = cv2.remap(np.asarray(lin, np.float32), src[..., 0], src[..., 1], cv2.INTER_LINEAR,
-                      borderMode=cv2.BORDER_REPLICATE)
-    local = straight.reshape(-1, 4, 2) - np.array([x0, y0], dtype=np.float64)
-    dq, dids, _, _ = decode_quads(patch, local, patterns)
-    back = lens.distort((dq + np.array([x0, y0], dtype=np.float64)).reshape(-1, 2))
-    return np.asarray(back, dtype=np.float64).reshape(-1, 4, 2), dids
+    scale = _perimeter(quads) / np.maximum(_perimeter(straight), 1e-9)
+    lo = straight.min(axis=1)
+    local = (straight - lo[:, None]) * scale[:, None, None] + _PAD_PX
+    size = np.ceil(local.max(axis=1)).astype(int) + _PAD_PX + 1
+    left = np.concatenate([[0], np.cumsum(size[:, 0])])
+    maps = np.full((int(size[:, 1].max()), int(left[-1]), 2), -1.0, np.float32)
+    for r, (w, h) in enumerate(size):
+        # the lens's map at knots _STEP_PX apart, bilinear between them (smooth there)
+        ky, kx = np.mgrid[0:h + _STEP_PX:_STEP_PX, 0:w + _STEP_PX:_STEP_PX].astype(np.float64)
+        at = (np.c_[kx.ravel(), ky.ravel()] - _PAD_PX) / scale[r] + lo[r]
+        knots = np.asarray(lens.distort(at), np.float32).reshape(*kx.shape, 2)
+        fy, fx = np.mgrid[0:h, 0:w].astype(np.float32) / _STEP_PX
+        maps[:h, left[r]:left[r] + w] = cv2.remap(knots, fx, fy, cv2.INTER_LINEAR)
+    patch = cv2.remap(np.asarray(lin, np.float32), maps[..., 0], maps[..., 1],
+                      cv2.INTER_LINEAR, borderMode=cv2.BORDER_REPLICATE)
+    shift = np.c_[left[:-1], np.zeros(len(quads))][:, None, :]
+    dq, dids, which, _ = decode_quads(patch, local + shift, patterns)
+    back = (dq - shift[which] - _PAD_PX) / scale[which, None, None] + lo[which, None]
+    return np.asarray(lens.distort(back.reshape(-1, 2)), np.float64).reshape(-1, 4, 2), dids
+
+
+def _perimeter(quads: np.ndarray) -> np.ndarray:
+    """(R,) perimeter of quads (R, 4, 2)."""
+    return np.asarray(np.linalg.norm(quads - np.roll(quads, -1, axis=1), axis=2).sum(axis=1))
 
 
 def read_through_lens(lin: np.ndarray, lens: Any, near: np.ndarray, known: np.ndarray,
