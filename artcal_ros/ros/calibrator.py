@@ -88,7 +88,7 @@ from artcal_ros.ros.calibrator_common import (
 )
 from artcal_ros.ros.command_line import CommandHelp, from_specs, handle_arguments, init_ros
 from artcal_ros.ros.diagnostics import Counters, diagnostic_array
-from artcal_ros.ros.image_subscription import ImageSubscription, QosChoice
+from artcal_ros.ros.image_subscription import QOS_CHECK_S, ImageSubscription, QosChoice
 from artcal_ros.ros.latest import LatestWorker
 from artcal_ros.ros.parameters import check_update, declare_parameters
 from artcal_ros.ros.rig_calibrator import rig_main, rig_requested
@@ -181,7 +181,7 @@ class CalibratorNode(Node):
         self.create_timer(1.0, self._publish_diagnostics, callback_group=timers)
         # Publishers come and go (a driver restarts, a second one starts): the image QoS is
         # chosen again from the graph on this check (the subscription carries no DDS events).
-        self.create_timer(0.5, self._choose_image_qos, callback_group=timers)
+        self.create_timer(QOS_CHECK_S, self._choose_image_qos, callback_group=timers)
 
     # --- state read across threads ---------------------------------------------------
     @property

@@ -58,7 +58,7 @@ from artcal_ros.ros.calibrator_common import (
     spin_until_stopped,
 )
 from artcal_ros.ros.diagnostics import Counters
-from artcal_ros.ros.image_subscription import ImageSubscription
+from artcal_ros.ros.image_subscription import QOS_CHECK_S, ImageSubscription
 from artcal_ros.ros.parameters import check_update, declare_parameters
 from artcal_ros.ros.rig_outputs import (
     call_set_camera_info,
@@ -146,7 +146,7 @@ class RigCalibratorNode(Node):
             n: self.create_client(SetCameraInfo, f"{n}/set_camera_info",
                                   callback_group=services) for n in names}
         self.create_timer(1.0, self._publish_diagnostics, callback_group=timers)
-        self.create_timer(0.5, self._choose_image_qos, callback_group=timers)
+        self.create_timer(QOS_CHECK_S, self._choose_image_qos, callback_group=timers)
         self.add_on_set_parameters_callback(self._on_set_parameters)
         topics = ", ".join(s.topic for s in self.images.values())
         self.get_logger().info(
