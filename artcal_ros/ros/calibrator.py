@@ -346,13 +346,13 @@ class CalibratorNode(Node):
         self.info_pub.publish(info)
         check = check_board([views[i] for i in outcome.result.views_used], self.board,
                             outcome.result.camera)
+        outcome = replace(outcome, message=f"{outcome.message}; report: "
+                          f"{self._queue_report(outcome.result, views, check)}")
         with self._status_lock:
             self._last_summary = outcome.message
             self._last_board_check = check.text()
         if check.warning:
             self.get_logger().warning(f"board check: {check.warning}")
-        outcome = replace(outcome, message=f"{outcome.message}; report: "
-                          f"{self._queue_report(outcome.result, views, check)}")
         if self.params["commit"]:
             committed = self._commit(info, outcome)
             return committed if outcome.success else replace(committed, success=False)

@@ -240,6 +240,9 @@ class SolveWorker:
         while (job := self._jobs.get()) is not None:
             if not job.future.set_running_or_notify_cancel():
                 continue  # cancelled while queued
+            if self._cancel.is_set():  # closing: what is still queued is not started
+                job.future.set_exception(CancelledError())
+                continue
             try:
                 job.future.set_result(job.solve())
             except BaseException as e:  # every outcome reaches the one waiting
