@@ -1,4 +1,5 @@
-"""Result files written atomically: a reader sees the old file or the new one, never a part."""
+"""Where results go, and result files written atomically (a reader sees the old file or the
+new one, never a part)."""
 
 from __future__ import annotations
 
@@ -7,6 +8,12 @@ import tempfile
 from pathlib import Path
 
 from artcal_ros.core.errors import ArtcalError
+
+
+def ros_home() -> Path:
+    """``$ROS_HOME`` (``~`` expanded), else ``~/.ros``: where rcl keeps its logs too."""
+    value = os.environ.get("ROS_HOME", "")
+    return Path(os.path.expanduser(value)) if value else Path.home() / ".ros"
 
 
 def write_text_atomic(path: str | os.PathLike[str], text: str) -> Path:

@@ -412,11 +412,14 @@ def parse_override(text: str) -> tuple[str, Any]:
 
 
 def report_path(params: Mapping[str, Any]) -> Path:
-    """The node's report directory: ``report_dir`` or ~/.ros/artcal/<camera_name>/report/."""
+    """The node's report directory: ``report_dir``, or ``report/`` beside the saved session
+    (``$ROS_HOME/artcal/<camera_name>/``, ``~/.ros/artcal/<camera_name>/`` by default)."""
+    from artcal_ros.core.files import ros_home
+
     explicit = str(params.get("report_dir") or "")
     if explicit:
         return Path(os.path.expanduser(explicit))
-    return Path.home() / ".ros" / "artcal" / str(params.get("camera_name", "camera")) / "report"
+    return ros_home() / "artcal" / str(params.get("camera_name", "camera")) / "report"
 
 
 def output_path(params: Mapping[str, Any]) -> Path:

@@ -154,7 +154,9 @@ def private_ros_home(out: Path) -> dict[str, str]:
     (the calibrator's session directory, rcl's default log directory) and ``ROS_LOG_DIR``
     (set too: a user's own setting of it would otherwise win)."""
     home = out / "ros_home"
-    return {"ROS_HOME": str(home), "ROS_LOG_DIR": str(home / "log")}
+    # The report's plotting library keeps its font cache under MPLCONFIGDIR (else ~/.cache).
+    return {"ROS_HOME": str(home), "ROS_LOG_DIR": str(home / "log"),
+            "MPLCONFIGDIR": str(out / "matplotlib")}
 
 
 # What the progress lines count, said once before them (the node's diagnostics keys).

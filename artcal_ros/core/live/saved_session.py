@@ -45,6 +45,7 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError
+from artcal_ros.core.files import ros_home
 from artcal_ros.core.live.coverage import ViewCollector
 
 FORMAT = "artcal-session-1"
@@ -59,12 +60,6 @@ class SessionFileError(ArtcalError):
 
 class SessionMismatchError(SessionFileError):
     """A saved session is of another board or image topic than the node resuming it."""
-
-
-def ros_home() -> Path:
-    """``$ROS_HOME`` (``~`` expanded), else ``~/.ros``: where rcl keeps its logs too."""
-    value = os.environ.get("ROS_HOME", "")
-    return Path(os.path.expanduser(value)) if value else Path.home() / ".ros"
 
 
 def session_dir(camera_name: str) -> Path:
