@@ -148,8 +148,10 @@ class CalibratorNode(Node):
                                   on_measured=self._on_measured,
                                   on_error=self._on_worker_error)
         self.solver = SolveWorker(name="solve")
+        # The live solve waits while frames wait for precise detection: views come first.
         self.live_status = LiveStatus(self.board, self.params,
-                                      on_error=self._on_live_solve_error)
+                                      on_error=self._on_live_solve_error,
+                                      defer_while=lambda: self.live.backlog > 0)
         self.live_status.offer(self.collector.snapshot())  # a resumed session's views
         self.worker: LatestWorker[Any] = LatestWorker(self._process, self._on_worker_error,
                                                       name="track")

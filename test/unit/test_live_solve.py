@@ -13,7 +13,7 @@ import numpy as np
 from artcal_ros.core.calibrate.quality import projection_difference
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.live.coverage import CoverageConfig, ViewCollector
-from artcal_ros.core.live.live_solve import LiveSolve, LiveSolver
+from artcal_ros.core.live.live_solve import MAX_DEFER_S, LiveSolve, LiveSolver
 from artcal_ros.core.live.readiness import calibrate_readiness, live_readiness
 from artcal_ros.synth import Camera
 from test.unit.noisy_views import BOARD, noisy_views
@@ -94,6 +94,34 @@ def test_the_thread_takes_the_newest_collection_and_never_blocks() -> None:
     finally:
         assert live.stop(timeout=10.0)
     assert not live.alive
+
+
+def test_an_update_waits_while_views_wait_for_precise_detection() -> None:
+    # The node's precise detection comes first: an offer waits while it is busy, at most
+    # MAX_DEFER_S, and goes at once when it is idle.
+    dets = with_sigmas(noisy_views(CAM, 6, 33), 0.03)
+    busy = [True]
+    done: list[float] = []
+    live = LiveSolve(BOARD, on_update=lambda e: done.append(time.monotonic()),
+                     defer_while=lambda: busy[0])
+    try:
+        t0 = time.monotonic()
+        live.offer(dets, CAM.size)
+        deadline = t0 + 60
+        while not done and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert done and done[0] - t0 >= MAX_DEFER_S, "solved before the deferral ran out"
+        busy[0] = False
+        t1 = time.monotonic()
+        live.offer(dets[:5], CAM.size)
+        while len(done) < 2 and time.monotonic() < deadline:
+            time.sleep(0.02)
+        assert len(done) == 2
+        # not held back: the solve starts within a poll (its own time aside)
+        snap = live.snapshot()
+        assert snap is not None and done[1] - t1 < 1.0 + snap.seconds
+    finally:
+        assert live.stop(timeout=10.0)
 
 
 def test_readiness_follows_the_uncertainty() -> None:

@@ -297,6 +297,10 @@ def _implausible(sol: Solution, res: list[np.ndarray], size: tuple[int, int]) ->
     return None
 
 
+# The longest a collection offered waits for ``defer_while`` to clear before it is solved.
+MAX_DEFER_S = 2.0
+
+
 class LiveSolve(BackgroundTier[tuple[int, list[Detections], tuple[int, int]]]):
     """The live solve on its own thread, "live solve", latest-wins.
 
@@ -309,15 +313,22 @@ class LiveSolve(BackgroundTier[tuple[int, list[Detections], tuple[int, int]]]):
         on_update: called on the thread with each new estimate.
         on_error: called on the thread with an error a solve raised (the estimate stays
             the previous one; the next update starts cold).
+        defer_while: while it returns True (frames wait for precise detection) a collection
+            offered waits, up to :data:`MAX_DEFER_S`: on two busy cores the solve would
+            otherwise take the time that measures the next views. Called with the thread's
+            lock held: it must take no lock of its own.
     """
 
     def __init__(self, board: Board, config: LiveSolveConfig | None = None, *,
                  on_update: Callable[[LiveEstimate], None] | None = None,
-                 on_error: Callable[[BaseException], None] | None = None) -> None:
+                 on_error: Callable[[BaseException], None] | None = None,
+                 defer_while: Callable[[], bool] | None = None) -> None:
         super().__init__("live solve")
         self._solver = LiveSolver(board, config)
         self._on_update = on_update
         self._on_error = on_error
+        self._defer_while = defer_while
+        self._offered = 0.0  # time.monotonic() of the offer waiting
         self._waiting: tuple[int, list[Detections], tuple[int, int]] | None = None
         self._busy = False
         self._estimate: LiveEstimate | None = None
@@ -327,6 +338,8 @@ class LiveSolve(BackgroundTier[tuple[int, list[Detections], tuple[int, int]]]):
     def offer(self, collection: Sequence[Detections], image_size: tuple[int, int]) -> None:
         """Solve this collection next (replacing one still waiting)."""
         with self._cond:
+            if self._waiting is None:
+                self._offered = time.monotonic()
             self._waiting = (self._generation, list(collection), image_size)
             self._cond.notify_all()
 
@@ -369,6 +382,9 @@ class LiveSolve(BackgroundTier[tuple[int, list[Detections], tuple[int, int]]]):
             self._error = ""
 
     def _next_job(self) -> tuple[int, list[Detections], tuple[int, int]] | None:
+        if (self._waiting is not None and self._defer_while is not None
+                and time.monotonic() - self._offered < MAX_DEFER_S and self._defer_while()):
+            return None  # polled again in 50 ms
         job, self._waiting = self._waiting, None
         self._busy = job is not None
         return job

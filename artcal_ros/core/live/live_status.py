@@ -33,17 +33,21 @@ class LiveStatus:
         params: validated flat parameters (the solve options, ``readiness.max_uncertainty``);
             :meth:`reconfigure` takes new ones.
         on_error: called on the live solve's thread with an update's error.
+        defer_while: :class:`~artcal_ros.core.live.live_solve.LiveSolve`'s: an update waits
+            while it is True (frames wait for precise detection), up to 2 s.
     """
 
     def __init__(self, board: Board, params: Mapping[str, Any], *,
-                 on_error: Callable[[BaseException], None] | None = None) -> None:
+                 on_error: Callable[[BaseException], None] | None = None,
+                 defer_while: Callable[[], bool] | None = None) -> None:
         self.board = board
         self._lock = threading.Lock()
         self._max_uncertainty = float(params["readiness.max_uncertainty"])
         self._next: NextPose | None = None
         self._next_error = ""
         self.solve = LiveSolve(board, LiveSolveConfig.from_params(params),
-                               on_update=self._on_update, on_error=on_error)
+                               on_update=self._on_update, on_error=on_error,
+                               defer_while=defer_while)
 
     def _on_update(self, estimate: LiveEstimate) -> None:
         # The live solve's thread: the next pose from the estimate just made.

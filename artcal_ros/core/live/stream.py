@@ -196,6 +196,12 @@ class LiveDetection(BackgroundTier[_Job]):
             self._on_measured(job.image, dets, kept)
 
     # --- state ---------------------------------------------------------------------
+    @property
+    def backlog(self) -> int:
+        """Frames waiting for precise detection now: a glance taken without the lock (for
+        work that should wait while there are some, as the live solve does)."""
+        return len(self._queue)
+
     def counts(self) -> LiveCounts:
         """Frames measured, waiting and refused so far."""
         pending = self.collector.pending
