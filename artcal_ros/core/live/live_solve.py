@@ -299,13 +299,17 @@ def _implausible(sol: Solution, res: list[np.ndarray], size: tuple[int, int]) ->
 
 # The longest a collection offered waits for ``defer_while`` to clear before it is solved.
 MAX_DEFER_S = 2.0
+# After an update the thread rests this many times as long as the update took before the
+# next: at most half of one core, so the precise detection that makes the views keeps its.
+REST_FACTOR = 1.0
 
 
 class LiveSolve(BackgroundTier[tuple[int, list[Detections], tuple[int, int]]]):
     """The live solve on its own thread, "live solve", latest-wins.
 
     :meth:`offer` hands over the collection (never waits); the thread solves the newest
-    collection offered and :meth:`snapshot` gives the last estimate. Started on creation;
+    collection offered and :meth:`snapshot` gives the last estimate. After each update it
+    rests as long as the update took (:data:`REST_FACTOR`). Started on creation;
     :meth:`stop` joins the thread.
 
     Args:
@@ -329,6 +333,8 @@ class LiveSolve(BackgroundTier[tuple[int, list[Detections], tuple[int, int]]]):
         self._on_error = on_error
         self._defer_while = defer_while
         self._offered = 0.0  # time.monotonic() of the offer waiting
+        self._started = 0.0  # time.monotonic() the running update started
+        self._rest_until = 0.0  # no update starts before this
         self._waiting: tuple[int, list[Detections], tuple[int, int]] | None = None
         self._busy = False
         self._estimate: LiveEstimate | None = None
@@ -382,11 +388,14 @@ class LiveSolve(BackgroundTier[tuple[int, list[Detections], tuple[int, int]]]):
             self._error = ""
 
     def _next_job(self) -> tuple[int, list[Detections], tuple[int, int]] | None:
-        if (self._waiting is not None and self._defer_while is not None
-                and time.monotonic() - self._offered < MAX_DEFER_S and self._defer_while()):
+        now = time.monotonic()
+        if self._waiting is not None and (now < self._rest_until or (
+                self._defer_while is not None and now - self._offered < MAX_DEFER_S
+                and self._defer_while())):
             return None  # polled again in 50 ms
         job, self._waiting = self._waiting, None
         self._busy = job is not None
+        self._started = now
         return job
 
     def _pending(self) -> int:
@@ -394,6 +403,8 @@ class LiveSolve(BackgroundTier[tuple[int, list[Detections], tuple[int, int]]]):
 
     def _job_done(self, job: tuple[int, list[Detections], tuple[int, int]]) -> None:
         self._busy = False
+        now = time.monotonic()
+        self._rest_until = now + REST_FACTOR * (now - self._started)
 
     def _work(self, job: tuple[int, list[Detections], tuple[int, int]]) -> None:
         generation, collection, size = job
