@@ -7,12 +7,10 @@ transports is a small share of any frame over half a megabyte. So with ``image_q
 the subscription asks for what the publishers offer, the way ``ros2 topic echo`` and
 rosbag2 choose: reliable when every publisher of the topic is reliable, best effort as soon
 as one is not (a reliable reader does not match a best-effort writer), and chosen again
-whenever the set of publishers changes, on the node's periodic check (:meth:`refresh`). Before
-any publisher exists there is no subscription: it is made once the first publisher is seen,
-with that publisher's reliability, so a recording or camera that starts after the node is not
-met by a subscription replaced a moment later (a publisher that waits for its subscriber, as
-the replay node does, would lose the frames sent during the swap). Once every publisher has
-gone the subscription is left as it is, so a driver that restarts is met as before.
+whenever the set of publishers changes, on the node's periodic check (:meth:`refresh`, every
+:data:`QOS_CHECK_S`). Before any publisher exists the subscription is best effort (it matches
+either kind, and the node is subscribed to ``image`` from its start). Once every publisher
+has gone the subscription is left as it is, so a driver that restarts is met as before.
 
 The subscription carries no DDS event handlers (matched, incompatible QoS): a handler is a
 waitable of its own, and destroying it from one executor thread while another builds its wait
@@ -71,13 +69,10 @@ class QosChoice:
 
     reliable: bool
     reason: str
-    waiting: bool = False  # auto with no publisher yet: nothing subscribed
 
     def text(self) -> str:
-        """``reliable (why)``, ``best effort (why)`` or ``not subscribed yet (why)``."""
-        kind = ("not subscribed yet" if self.waiting
-                else "reliable" if self.reliable else "best effort")
-        return f"{kind} ({self.reason})"
+        """``reliable (why)`` or ``best effort (why)``."""
+        return f"{'reliable' if self.reliable else 'best effort'} ({self.reason})"
 
 
 def choose_qos(mode: str, publishers_reliable: Sequence[bool]) -> QosChoice:
@@ -173,12 +168,8 @@ class ImageSubscription:
         self._lock = threading.Lock()  # refresh() against itself
         self._subscription: Subscription[Any] | None = None
         self.gaps = SequenceGaps()
-        publishers = self._publishers()
-        self.choice = choose_qos(mode, publishers)
-        if mode == "auto" and not publishers:
-            self.choice = QosChoice(False, "auto: waiting for a publisher", waiting=True)
-        else:
-            self._subscribe()
+        self.choice = choose_qos(mode, self._publishers())
+        self._subscribe()
 
     def _publishers(self) -> list[bool]:
         infos = self._node.get_publishers_info_by_topic(self.topic)
@@ -213,10 +204,6 @@ class ImageSubscription:
             if not publishers:
                 return False  # keep what matched the last publisher until the next one
             choice = choose_qos(self._mode, publishers)
-            if self._subscription is None:  # the first publisher seen
-                self.choice = choice
-                self._subscribe()
-                return True
             if choice.reliable == self.choice.reliable:
                 self.choice = choice  # the same reliability; the reason may read differently
                 return False

@@ -105,8 +105,9 @@ _DURABILITY = {"volatile": DurabilityPolicy.VOLATILE,
                "transient_local": DurabilityPolicy.TRANSIENT_LOCAL}
 # Discovery is two-sided, and a subscriber that chooses its QoS from ours (the calibrator's
 # image_qos auto) replaces its subscription once it has seen us: messages sent before the
-# subscription it keeps has matched are lost. Play once the matched count has held this long.
-SETTLE_S = 1.0
+# subscription it keeps has matched are lost. Play once the matched count has held this long
+# (the calibrator looks at the graph every 0.2 s, and discovery under load takes seconds).
+SETTLE_S = 2.0
 # A result latched before we subscribed must still reach us.
 UNTIL_QOS = QoSProfile(history=HistoryPolicy.KEEP_LAST, depth=1,
                        reliability=ReliabilityPolicy.RELIABLE,
