@@ -12,7 +12,12 @@ import numpy as np
 import pytest
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.calibrate.solve_run import CancelledError, SolveRun, SolveWorker
+from artcal_ros.core.calibrate.solve_run import (
+    CancelledError,
+    SolveRun,
+    SolveWorker,
+    queue_report,
+)
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import CalibrationError
 from artcal_ros.core.live.coverage import CoverageConfig, ViewCollector
@@ -109,6 +114,32 @@ def test_closing_the_worker_ends_a_solve_in_progress(tmp_path: Path) -> None:
     late = solver.submit(views(12, seed=5), BOARD, CAM.size, params)
     with pytest.raises(CancelledError):
         late.result(timeout=0)
+
+
+def test_a_report_is_written_behind_the_solve_and_ends_when_the_worker_closes(
+        tmp_path: Path) -> None:
+    params = load_params(PARAMS, {"output_file": str(tmp_path / "c.yaml")})
+    said: list[tuple[bool, str]] = []
+    with SolveWorker() as solver:
+        run = solver.submit(views(12, seed=5), BOARD, CAM.size, params).result(timeout=300)
+        where = queue_report(solver, tmp_path / "report", run.result, views(12, seed=5),
+                             BOARD, tone_curve=None, board_check=None, title="cam",
+                             said=lambda ok, text: said.append((ok, text)))
+        # the next job runs after the report: when it is done, so is the report
+        solver.submit_task(lambda: None).result(timeout=300)
+    assert said == [(True, f"report written: {where / 'report.pdf'}")]
+    assert (where / "report.pdf").read_bytes().startswith(b"%PDF")
+    # Closed while a report is being written: it stops at its next page, the old PDF stays.
+    old = (where / "report.pdf").read_bytes()
+    solver = SolveWorker()
+    said.clear()
+    started = threading.Event()
+    solver.submit_task(started.set)
+    queue_report(solver, where, run.result, views(12, seed=5), BOARD, tone_curve=None,
+                 board_check=None, title="cam", said=lambda ok, text: said.append((ok, text)))
+    assert started.wait(60)
+    assert solver.close(timeout=30.0), "the report kept the solve thread past close()"
+    assert said == [] and (where / "report.pdf").read_bytes() == old
 
 
 def test_the_executor_spin_thread_is_joined_by_its_close() -> None:

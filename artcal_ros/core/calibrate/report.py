@@ -25,7 +25,7 @@ from __future__ import annotations
 import io
 import json
 import os
-from collections.abc import Mapping, Sequence
+from collections.abc import Callable, Mapping, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -190,7 +190,8 @@ def write_report(directory: str | Path, result: CalibrationResult, *,
                  detections: Sequence[Detections] | None = None,
                  board: Board | None = None,
                  extra: Mapping[str, Any] | None = None,
-                 title: str = "") -> list[Path]:
+                 title: str = "",
+                 progress: Callable[[str], None] | None = None) -> list[Path]:
     """Write a calibration's report into ``directory`` (made if missing).
 
     ``summary.json`` (the result's summary with ``success`` true, ``tone_curve``,
@@ -207,6 +208,8 @@ def write_report(directory: str | Path, result: CalibrationResult, *,
             of a marker board, and the advice names the board's features.
         extra: more keys for summary.json.
         title: the report's title (e.g. the camera's name).
+        progress: called before each page with its PNG's name; may raise to stop (the
+            report.pdf already there is then left as it was).
 
     Returns:
         The files written: report.pdf, the PNGs, summary.json.
@@ -224,6 +227,8 @@ def write_report(directory: str | Path, result: CalibrationResult, *,
     report = PdfReport(out)
     for png, fig in calibration_pages(result, tone_curve=tone_curve, board_check=board_check,
                                       detections=detections, board=board, title=title):
+        if progress is not None:
+            progress(png or "page")  # may raise to stop: the PDF in place stays the old one
         report.add(fig, png)
     written = report.close()
     return [*written, write_summary(out, summary)]

@@ -253,6 +253,11 @@ class SolveWorker:
         """Whether the thread still runs."""
         return self._thread.is_alive()
 
+    @property
+    def closing(self) -> bool:
+        """Whether :meth:`close` was called (work in progress should end)."""
+        return self._cancel.is_set()
+
     def close(self, timeout: float = 2.0) -> bool:
         """Cancel the solves (a running one ends at its next stage, queued ones at their
         first) and wait up to ``timeout`` s for the thread; whether it ended. Idempotent."""
@@ -326,9 +331,14 @@ def queue_report(worker: SolveWorker, directory: Path, result: CalibrationResult
     """
     from artcal_ros.core.calibrate.report import write_report
 
+    def stop_when_closing(_page: str) -> None:
+        if worker.closing:
+            raise CancelledError
+
     def write() -> list[Path]:
         return write_report(directory, result, tone_curve=tone_curve, board_check=board_check,
-                            detections=list(views), board=board, title=title)
+                            detections=list(views), board=board, title=title,
+                            progress=stop_when_closing)
 
     def written(future: Future[list[Path]]) -> None:
         error = None if future.cancelled() else future.exception()
