@@ -24,7 +24,7 @@ from __future__ import annotations
 
 import threading
 import time
-from concurrent.futures import CancelledError, Future
+from concurrent.futures import CancelledError
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -41,6 +41,7 @@ from std_srvs.srv import Trigger
 from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate.rig_files import rig_solve_kwargs, write_rig_files
 from artcal_ros.core.calibrate.rig_result import RigResult
+from artcal_ros.core.calibrate.solve_run import report_said
 from artcal_ros.core.camera_info import CameraInfoData, read_camera_info_yaml
 from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
 from artcal_ros.core.images import image_to_numpy
@@ -323,19 +324,12 @@ class RigCalibratorNode(Node):
 
         directory, log = report_path(self.params), self.get_logger()
 
-        def written(future: Future[Any]) -> None:
-            error = None if future.cancelled() else future.exception()
-            if future.cancelled() or isinstance(error, (CancelledError, RuntimeError)):
-                return  # the node is stopping
-            if error is None:
-                log.info(f"report written: {directory / 'report.pdf'}")
-            else:
-                log.warning(f"no report in {directory}: {error}")
-
         self.stream.submit(partial(
             write_rig_report, directory, rig, snap.detections(), self.board,
             str(self.params["points"]), summary={"success": True, **rig.to_summary_dict()}),
-        ).add_done_callback(written)
+        ).add_done_callback(report_said(
+            directory, lambda ok, text: log.info(text) if ok else log.warning(text),
+            stopped=(CancelledError, RuntimeError)))  # RuntimeError: the stream stopped
         return directory
 
     def _commit(self, rig: RigResult, message: str) -> tuple[bool, str]:

@@ -340,14 +340,23 @@ def queue_report(worker: SolveWorker, directory: Path, result: CalibrationResult
                             detections=list(views), board=board, title=title,
                             progress=stop_when_closing)
 
-    def written(future: Future[list[Path]]) -> None:
+    worker.submit_task(write).add_done_callback(report_said(directory, said))
+    return directory
+
+
+def report_said(directory: Path, said: Callable[[bool, str], object], *,
+                stopped: tuple[type[BaseException], ...] = (CancelledError,)
+                ) -> Callable[[Future[Any]], None]:
+    """A done-callback for a report's future: ``said(True, where)`` once written,
+    ``said(False, why not)`` on an error, nothing when it was cancelled or ended by one of
+    ``stopped`` (its worker closing)."""
+    def done(future: Future[Any]) -> None:
         error = None if future.cancelled() else future.exception()
-        if future.cancelled() or isinstance(error, CancelledError):
+        if future.cancelled() or isinstance(error, stopped):
             return
         if error is None:
             said(True, f"report written: {directory / 'report.pdf'}")
         else:
             said(False, f"no report in {directory}: {error}")
 
-    worker.submit_task(write).add_done_callback(written)
-    return directory
+    return done
