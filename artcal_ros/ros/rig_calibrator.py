@@ -16,8 +16,11 @@ Images of different cameras stamped within ``sync_tolerance`` form a rig frame
 (:mod:`~artcal_ros.core.live.rig_frames`); a rig frame in which two or more cameras measure the
 board is a rig view. Each image callback (one callback group per camera) tracks its camera's
 markers and draws its overlay; ``RigStream``'s one worker thread measures new rig views
-precisely and runs ``calibrate_rig``, which ``~/calibrate`` waits for. With
-``calibrate.fix_intrinsics`` the intrinsics in ``<dir>/<camera>.yaml`` are kept.
+precisely and runs ``calibrate_rig``, which ``~/calibrate`` waits for. Every new rig view is
+handed to ``RigStatus``: one live solve per camera (threads "live solve", waiting while rig
+frames wait for precise detection), whose projection uncertainty makes the rig ready and
+whose next pose each overlay draws. With ``calibrate.fix_intrinsics`` the intrinsics in
+``<dir>/<camera>.yaml`` are kept.
 """
 
 from __future__ import annotations
@@ -43,11 +46,14 @@ from artcal_ros.core.calibrate.rig_files import rig_solve_kwargs, write_rig_file
 from artcal_ros.core.calibrate.rig_result import RigResult
 from artcal_ros.core.calibrate.solve_run import report_said
 from artcal_ros.core.camera_info import CameraInfoData, read_camera_info_yaml
+from artcal_ros.core.detections import Detections
 from artcal_ros.core.errors import ArtcalError, ImageFormatError, ParameterError
 from artcal_ros.core.images import image_to_numpy
 from artcal_ros.core.images.broken_frames import broken_cause
 from artcal_ros.core.images.compressed import compressed_to_numpy
 from artcal_ros.core.live.overlay import render_overlay
+from artcal_ros.core.live.readiness import calibrate_readiness
+from artcal_ros.core.live.rig_status import RigStatus
 from artcal_ros.core.live.rig_stream import RigStream
 from artcal_ros.core.live.rig_views import RigSnapshot, RigViews, RigViewsConfig
 from artcal_ros.core.params import ParamValue, output_path, report_path
@@ -110,14 +116,19 @@ class RigCalibratorNode(Node):
         config = DetectorConfig.from_params(self.params)
         self.detectors = {n: Detector(self.board, config) for n in names}
         self.views = RigViews(self.board, names, self._views_config(self.params))
+        self._stopping = threading.Event()
+        # The live solves wait while rig frames wait for precise detection: views come first.
+        self.status = RigStatus(self.board, names, self.params,
+                                on_error=self._on_live_solve_error,
+                                defer_while=lambda: self.stream.backlog > 0)
         self.stream = RigStream(
             self.board, names, {n: d.detect for n, d in self.detectors.items()}, self.views,
-            round(float(self.params["sync_tolerance"]) * 1e9), on_error=self._on_worker_error)
+            round(float(self.params["sync_tolerance"]) * 1e9), on_error=self._on_worker_error,
+            on_measured=self._on_measured)
         self.counters = {n: Counters() for n in names}
         self.frame_ids = dict.fromkeys(names, "")
         self.last_summary = ""
         self._solving = threading.Lock()
-        self._stopping = threading.Event()
         self._output_lock = threading.Lock()   # nothing is published after stop()
         self._closed = False
 
@@ -203,9 +214,11 @@ class RigCalibratorNode(Node):
         if self._stopping.is_set() or pub.get_subscription_count() == 0:
             return
         snap = self.views.snapshot()
-        picture = render_overlay(image, frame.markers, snap.counts[name], snap.readiness[name],
+        readiness = self.status.readiness(snap).for_camera(snap.readiness[name])
+        picture = render_overlay(image, frame.markers, snap.counts[name], readiness,
                                  kept=frame.queued,
                                  max_width=int(self.params["overlay.max_width"]))
+        self.status.draw(name, picture, image.shape[1], frame.markers)
         overlay = msgs.bgr8_image(picture, msgs.header(msg.header.stamp, self.frame_ids[name]))
         with self._output_lock:
             if not self._closed:
@@ -221,6 +234,15 @@ class RigCalibratorNode(Node):
     def _on_qos_incompatible(self, text: str) -> None:
         self.get_logger().warning(text, throttle_duration_sec=10.0)
 
+    def _on_measured(self, dets: dict[str, Detections], kept: bool) -> None:
+        # The worker thread: a new rig view goes to the cameras' live solves (returns at once).
+        if kept and not self._stopping.is_set():
+            self.status.offer(self.views.snapshot())
+
+    def _on_live_solve_error(self, name: str, error: BaseException) -> None:
+        if not self._stopping.is_set():
+            self.get_logger().info(f"{name}: live solve: {error}", throttle_duration_sec=10.0)
+
     def _on_worker_error(self, error: BaseException) -> None:
         for c in self.counters.values():
             c.frame_failed()
@@ -230,14 +252,16 @@ class RigCalibratorNode(Node):
 
     def _publish_diagnostics(self) -> None:
         snap = self.views.snapshot()
+        readiness = self.status.readiness(snap)
+        live, uncertainty = self.status.diagnostics(snap, readiness)
         measured = self.stream.measured()
         unpaired = self.stream.pairer.unpaired()
-        extra = {n: {"frames measured": measured[n], "frames unpaired": unpaired[n],
+        extra = {n: {**live[n], "frames measured": measured[n], "frames unpaired": unpaired[n],
                      "image qos": self.images[n].choice.text(),
                      "frames missed (publisher sequence)": self.images[n].gaps.missed
                      if self.images[n].gaps.known else "unknown",
                      "tone curve": self.detectors[n].tone.text()} for n in self.names}
-        rig = {"rig frames paired": self.stream.pairer.paired,
+        rig = {**uncertainty, "rig frames paired": self.stream.pairer.paired,
                "rig frames queued": self.stream.queued(),
                "rig views refused (queue full)": self.stream.refused,
                "dds transport": self.transport}
@@ -246,7 +270,7 @@ class RigCalibratorNode(Node):
                 return
             self.diag_pub.publish(rig_diagnostics(
                 self.get_name(), {n: c.report() for n, c in self.counters.items()}, snap,
-                self.last_summary, self.get_clock().now().to_msg(), camera_extra=extra,
+                readiness, self.last_summary, self.get_clock().now().to_msg(), camera_extra=extra,
                 rig_extra=rig))
 
     # --- services ---------------------------------------------------------------------
@@ -258,7 +282,8 @@ class RigCalibratorNode(Node):
         waited = self.stream.wait_idle(timeout=10.0, stopping=self._stopping)
         snap = self.views.snapshot()
         if not snap.enough:
-            return False, f"not enough to calibrate the rig: {snap.summary()}"
+            return False, ("not enough to calibrate the rig: "
+                           f"{self.status.readiness(snap).summary()}")
         future = self.stream.submit(partial(self._solve, snap))
         deadline = time.monotonic() + SOLVE_TIMEOUT_S
         while not future.done():
@@ -273,6 +298,12 @@ class RigCalibratorNode(Node):
         except CancelledError:
             return False, "the rig solve was cancelled (the node is stopping)"
         message = self._publish(rig) + f"\nreport: {self._queue_report(rig, snap)}"
+        # How far from ready, by each camera's projection uncertainty in this solve.
+        bound = float(self.params["readiness.max_uncertainty"])
+        message += "".join(
+            f"\n{n}: " + calibrate_readiness(
+                rig.cameras[n].projection_uncertainty_px, len(snap.views), snap.min_views, bound)
+            for n in self.names)
         if not waited:
             message += f" ({self.views.pending} rig views still in detection were left out)"
         self.last_summary = message.splitlines()[0]
@@ -347,6 +378,7 @@ class RigCalibratorNode(Node):
                   ) -> Trigger.Response:
         self.stream.reset()
         n = self.views.reset()
+        self.status.reset()
         response.success, response.message = True, f"cleared {n} rig views"
         self.get_logger().info(f"~/reset: {response.message}")
         return response
@@ -356,16 +388,21 @@ class RigCalibratorNode(Node):
         if values is not None:
             self.params = values
             self.views.config = self._views_config(values)
+            if self.status.reconfigure(values):
+                self.status.offer(self.views.snapshot())
         return result
 
     def stop(self, timeout: float = 1.0) -> list[str]:
-        """Publish nothing more and stop the worker thread, joined for up to ``timeout``
-        seconds (a detection or solve in progress finishes first). Call it again to wait
-        longer. Returns the names of the node's threads still running."""
+        """Publish nothing more and stop the worker thread and the cameras' live solves,
+        joined for up to ``timeout`` seconds in all (a detection or solve in progress
+        finishes first). Call it again to wait longer. Returns the names of the node's
+        threads still running."""
         self._stopping.set()
         with self._output_lock:
             self._closed = True
-        return [self.stream.thread_name] if self.stream.stop(timeout=timeout) else []
+        deadline = time.monotonic() + timeout
+        left = [self.stream.thread_name] if self.stream.stop(timeout=timeout) else []
+        return left + self.status.stop(max(0.0, deadline - time.monotonic()))
 
 
 def rig_main(transport: str, stop: StopSignals) -> int:

@@ -2,8 +2,10 @@
 result sent to a camera driver's set_camera_info.
 
 Diagnostics: one status per camera (``<node>: <camera>``: frames seen, processed, broken,
-measured, markers in the last frame, views, coverage) and one for the rig (``<node>: rig``:
-``rig views``, shared views per pair, the cameras that share too few views with the others).
+measured, markers in the last frame, views, coverage, its live solve's ``projection
+uncertainty`` and ``next pose``) and one for the rig (``<node>: rig``: ``rig views``, shared
+views per pair, the cameras that share too few views with the others, each camera's
+``<camera>: projection uncertainty``, ``ready`` and what is missing in words).
 """
 
 from __future__ import annotations
@@ -21,6 +23,7 @@ from std_msgs.msg import Header
 
 from artcal_ros.core.calibrate.rig_files import frame_transforms
 from artcal_ros.core.calibrate.rig_result import RigResult
+from artcal_ros.core.live.rig_status import RigReadiness
 from artcal_ros.core.live.rig_views import RigSnapshot
 from artcal_ros.ros.diagnostics import CountsReport
 
@@ -32,7 +35,8 @@ def _status(name: str, hardware_id: str, level: bytes, message: str,
 
 
 def rig_diagnostics(node_name: str, counts: Mapping[str, CountsReport],
-                    snap: RigSnapshot, last_solve: str, stamp: Time, *,
+                    snap: RigSnapshot, readiness: RigReadiness, last_solve: str,
+                    stamp: Time, *,
                     camera_extra: Mapping[str, Mapping[str, object]],
                     rig_extra: Mapping[str, object]) -> DiagnosticArray:
     """The rig node's DiagnosticArray: a status per camera, then the rig's.
@@ -42,7 +46,7 @@ def rig_diagnostics(node_name: str, counts: Mapping[str, CountsReport],
 
     Args:
         counts: camera -> its counts (:meth:`~artcal_ros.ros.diagnostics.Counters.report`).
-        snap: the rig collection now.
+        snap: the rig collection now; readiness: its readiness judged by the live solves.
         last_solve: the last ``~/calibrate`` answer.
         camera_extra: camera -> more key/values after the standard ones.
         rig_extra: more key/values of the rig's status.
@@ -72,11 +76,14 @@ def rig_diagnostics(node_name: str, counts: Mapping[str, CountsReport],
               **{f"shared views {a}-{b}": k for (a, b), k in snap.shared.items()},
               "cameras not connected": ", ".join(snap.not_connected),
               "connectivity": snap.problem or "every camera connected",
-              "ready": str(snap.enough).lower(), "last calibration": last_solve,
+              "ready": str(readiness.ready).lower(),
+              "missing": "; ".join(readiness.missing) or "nothing",
+              "projection uncertainty needed": f"{readiness.max_uncertainty_px:.3f}",
+              "last calibration": last_solve,
               **rig_extra}
     statuses.append(_status(f"{node_name}: rig", ",".join(snap.names),
                             DiagnosticStatus.WARN if snap.problem else DiagnosticStatus.OK,
-                            snap.summary(), values))
+                            readiness.summary(), values))
     return DiagnosticArray(header=Header(stamp=stamp), status=statuses)
 
 

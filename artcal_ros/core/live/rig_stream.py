@@ -239,6 +239,13 @@ class RigStream(BackgroundTier[_Job]):
         with self._cond:
             return self._refused
 
+    @property
+    def backlog(self) -> int:
+        """Jobs waiting for the worker now (rig frames to measure, a solve or report): a
+        glance taken without the lock, for work that should wait while there are some (the
+        cameras' live solves)."""
+        return len(self._queue)
+
     def queued(self) -> int:
         """Rig frames waiting for (or in) precise detection."""
         return self.views.pending
