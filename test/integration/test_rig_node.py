@@ -3,7 +3,9 @@ console script, fed rendered stereo frames of a known rig.
 
 Checked against the renderer's truth: both CameraInfos (the right one's P with
 Tx = -fx' * baseline), the baseline within 1 % of the true 0.12 m, the files written, the
-rig's diagnostics and overlays, both drivers' set_camera_info called (commit), ~/reset; one
+rig's diagnostics and overlays, the live readiness (each camera's projection uncertainty in
+the diagnostics, ``ready`` turning true once every camera's is within the bound, near the
+true projection difference), both drivers' set_camera_info called (commit), ~/reset; one
 camera name alone is refused at start-up, naming the parameter.
 """
 
@@ -13,7 +15,7 @@ import json
 import re
 import threading
 import time
-from collections.abc import Iterator
+from collections.abc import Callable, Iterator
 from functools import partial
 from pathlib import Path
 from typing import Any
@@ -22,10 +24,15 @@ import numpy as np
 import pytest
 import yaml
 from diagnostic_msgs.msg import DiagnosticArray
+from rcl_interfaces.msg import Parameter as ParameterMsg
+from rcl_interfaces.msg import ParameterType, ParameterValue
+from rcl_interfaces.srv import SetParameters
 from sensor_msgs.msg import CameraInfo, Image
 from sensor_msgs.srv import SetCameraInfo
 from std_srvs.srv import Trigger
 
+from artcal_ros.core.calibrate.quality import projection_difference
+from artcal_ros.core.camera import CameraModel
 from test.integration.qos import LATCHED, RELIABLE
 from test.integration.ros_harness import PARAMS, NodeProcess, Probe, wait_until
 
@@ -33,6 +40,9 @@ pytestmark = pytest.mark.integration
 
 N_FRAMES = 12      # rig poses rendered, published round and round
 MIN_VIEWS = 8      # rig views before ~/calibrate solves
+MAX_UNCERTAINTY = 0.1  # px, readiness.max_uncertainty (config/calibrator.yaml's)
+TIGHT_UNCERTAINTY = 0.002  # px, a bound these 12 poses cannot reach (they give ~0.015 px)
+UNCERTAINTY = re.compile(r"(\d+\.\d+) px RMS, max \d+\.\d+ px \((\d+) views\)")
 PERIOD_S = 0.35    # between rig frames: the node measures about every one of them
 BASELINE_M = 0.12  # the stereo rig preset's
 
@@ -162,8 +172,21 @@ def test_stereo_stream_calibrates_the_rig(tmp_path: Path, probe: Probe,
     services = [probe.node.create_service(SetCameraInfo, f"/{n}/set_camera_info",
                                           partial(serve, n)) for n in committed]
     node = rig_node(tmp_path, "rigcal", "cameras:=[left,right]", f"min_views:={MIN_VIEWS}",
-                    "commit:=true", f"report_dir:={tmp_path / 'report'}")
+                    "commit:=true", f"report_dir:={tmp_path / 'report'}",
+                    f"readiness.max_uncertainty:={TIGHT_UNCERTAINTY}")
     try:
+        # enough rig views, but the cameras not yet known within the bound: not ready
+        short = wait_rig(diags, lambda rig: int(rig["rig views"]) >= MIN_VIEWS and all(
+            UNCERTAINTY.fullmatch(rig[f"{n}: projection uncertainty"]) for n in ("left", "right"))
+            and f"needs <= {TIGHT_UNCERTAINTY:.3g} px" in rig["missing"], 120.0,
+            "enough rig views, the uncertainty over a tight bound")
+        assert short["ready"] == "false", short
+        print(f"not ready at {short['rig views']} rig views: {short['missing']}")
+        set_parameter(probe, "rigcal", "readiness.max_uncertainty", MAX_UNCERTAINTY)
+        ready = wait_rig(diags, lambda rig: rig["ready"] == "true" and all(
+            UNCERTAINTY.fullmatch(c.get("projection uncertainty", "")) and c.get("next pose")
+            for c in (rig_status(diags, "rigcal", n) for n in ("left", "right"))), 60.0,
+            "the live rig ready")
         answer = calibrate_until_success(probe, "/rigcal/calibrate", timeout=80.0)
     finally:
         for service in services:
@@ -214,8 +237,50 @@ def test_stereo_stream_calibrates_the_rig(tmp_path: Path, probe: Probe,
     summary = json.loads((tmp_path / "report" / "summary.json").read_text())
     assert summary["extrinsics"][0]["from"] == "left", summary.keys()
     assert "Traceback" not in node.output()
+    # the live readiness: before the rig views were in, not ready and saying why
+    first = next(rig_status([a], "rigcal", "rig") for a in list(diags)
+                 if rig_status([a], "rigcal", "rig"))
+    assert first["ready"] == "false" and "more rig views" in first["missing"], first
+    # when ready: each camera's uncertainty within the bound, near its true difference
+    # (of the final solve, from more views: the same camera within a few x)
+    for n, info in ((n, infos[n][-1]) for n in ("left", "right")):
+        m = UNCERTAINTY.fullmatch(ready[f"{n}: projection uncertainty"])
+        assert m, ready
+        uncertainty = float(m.group(1))
+        assert uncertainty <= MAX_UNCERTAINTY and int(m.group(2)) >= 3, ready
+        assert f"\n{n}: ready: projection uncertainty" in answer.message \
+            or f"\n{n}: not ready yet" in answer.message, answer.message
+        true = projection_difference(stereo.rig.camera(n), CameraModel(
+            "plumb_bob", np.asarray(info.k).reshape(3, 3), np.asarray(info.d),
+            (info.width, info.height)))[0]
+        assert 0.1 < true / uncertainty < 10, (n, true, uncertainty)
+        print(f"{n}: live projection uncertainty {uncertainty:.4f} px at ready "
+              f"({ready['rig views']} rig views), final solve's true difference {true:.4f} px")
     print(f"stereo node: calibrated in {time.monotonic() - t0:.1f} s, baseline "
           f"{baseline:.5f} m")
+
+
+def wait_rig(diags: list[Any], predicate: Callable[[dict[str, str]], bool], timeout: float,
+             what: str) -> dict[str, str]:
+    """The newest rig status once ``predicate`` holds for it; AssertionError with the last
+    statuses."""
+    def newest() -> dict[str, str] | None:
+        rig = rig_status(diags, "rigcal", "rig")
+        return rig if rig and predicate(rig) else None
+
+    try:
+        return wait_until(newest, timeout, what, period=0.2)
+    except AssertionError as e:
+        statuses = {p: rig_status(diags, "rigcal", p) for p in ("rig", "left", "right")}
+        raise AssertionError(f"{e}; last statuses: {statuses}") from None
+
+
+def set_parameter(probe: Probe, node: str, name: str, value: float) -> None:
+    """Set a double parameter of ``/node`` through its set_parameters service."""
+    request = SetParameters.Request(parameters=[ParameterMsg(name=name, value=ParameterValue(
+        type=ParameterType.PARAMETER_DOUBLE, double_value=value))])
+    answer = probe.call(SetParameters, f"/{node}/set_parameters", request)
+    assert answer.results[0].successful, answer.results[0].reason
 
 
 def test_one_camera_name_is_refused(tmp_path: Path) -> None:
