@@ -251,7 +251,7 @@ def bag_benchmark(work: Path) -> dict[str, Any]:
     views = [view_points(d, BOARD, "centers", k) for k, d in enumerate(dets)]
     views = [v for v in views if view_problem(v, BOARD) is None]
     K0, D0 = selected.camera_matrix, selected.dist_coeffs
-    views = [lens_corrected_centers(v, K0, D0, "plumb_bob") for v in views]
+    views = [lens_corrected_centers(v, Camera("plumb_bob", K0, D0, cam.size)) for v in views]
     K, D, _, _ = bundle_adjust(views, K0, D0, "plumb_bob",
                                free=free_parameters("plumb_bob", False), weighted=True)
     out["all_frames_s"] = time.monotonic() - t0

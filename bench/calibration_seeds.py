@@ -14,8 +14,11 @@ detections through plumb_bob k1-k3. ``--per-frame`` detects each view with a fre
 ``Detector`` (as ``artcal_ros.detect(image, board)`` does: no tone curve or lens pooled over
 the views).
 ``--diagnose`` adds, per preset, the detected corners' radial error against the truth by
-distance from the principal point (positive: outward) and a calibration from the true
-corners plus 0.03 px noise on the same views (what the solve does without detection bias).
+distance from the principal point (positive: outward), calibrations from the true corners
+plus 0.03 px noise and plus noise of the detections' own RMS error on the same views (what
+the solve does without detection bias), and the corners in the image corners (beyond 90 % of
+the half diagonal, where a model with many radial terms is fitted from a few points): their
+number, mean radial error, RMS error against the truth and the detector's median sigma.
 """
 
 from __future__ import annotations
@@ -42,6 +45,7 @@ SEED_PRESETS = {"webcam": ("webcam", 0, "plumb_bob", 0), "hd": ("hd", 1, "plumb_
                 "wide-k3": ("wide", 2, "plumb_bob", 3),
                 "fisheye": ("fisheye", 3, "equidistant", 0)}
 RADII = (0.0, 0.25, 0.5, 0.75, 1.0)  # bins of radius / half the image diagonal
+RIM = 0.9  # radius / half diagonal beyond which a corner counts as in the image corners
 
 
 def realistic_views(preset: str, seed: int, cache: Path | None,
@@ -86,13 +90,15 @@ def solve(dets: list[Detections], row: str, points: str) -> float:
     return projection_difference(cam, r)[0]
 
 
-def radial_bias(s: dict[str, Any], cam: Camera) -> list[tuple[float, float, int]]:
-    """Mean radial error of the detected corners (px, + outward) per radius bin."""
+def corner_errors(s: dict[str, Any], cam: Camera) -> dict[str, np.ndarray]:
+    """Every detected corner of markers inside the image against the truth: radius / half
+    diagonal (``r``), error (``err`` (N, 2) px), its radial part (``radial``, + outward) and
+    the detector's sigma (``sigma`` px)."""
     from bench.tone import BOARD
 
     half_diag = 0.5 * float(np.hypot(*cam.size))
     pp = cam.K[[0, 1], [2, 2]]
-    rad, err = [], []
+    rad, err, radial, sigma = [], [], [], []
     for det, (corners, _, inside) in zip(s["dets"], s["truth"], strict=True):
         k = det.ids - BOARD.first_id
         ok = inside[k]
@@ -102,8 +108,28 @@ def radial_bias(s: dict[str, Any], cam: Camera) -> list[tuple[float, float, int]
         r = np.linalg.norm(d, axis=1)
         u = d / np.maximum(r, 1e-9)[:, None]
         rad.append(r / half_diag)
-        err.append(np.sum((found - truth) * u, axis=1))
-    r_all, e_all = np.concatenate(rad), np.concatenate(err)
+        err.append(found - truth)
+        radial.append(np.sum((found - truth) * u, axis=1))
+        sigma.append(np.asarray(det.corner_sigma_px, float)[ok].reshape(-1))
+    return {"r": np.concatenate(rad), "err": np.concatenate(err),
+            "radial": np.concatenate(radial), "sigma": np.concatenate(sigma)}
+
+
+def rim_errors(e: dict[str, np.ndarray]) -> tuple[int, float, float, float]:
+    """The corners beyond :data:`RIM`: (count, mean radial error, RMS error, median sigma),
+    pixels (NaN where there are none)."""
+    sel = (e["r"] >= RIM) & np.all(np.isfinite(e["err"]), axis=1)
+    if not sel.any():
+        return 0, float("nan"), float("nan"), float("nan")
+    return (int(sel.sum()), float(np.mean(e["radial"][sel])),
+            float(np.sqrt(np.mean(np.sum(e["err"][sel] ** 2, axis=1)))),
+            float(np.nanmedian(e["sigma"][sel])))
+
+
+def radial_bias(s: dict[str, Any], cam: Camera) -> list[tuple[float, float, int]]:
+    """Mean radial error of the detected corners (px, + outward) per radius bin."""
+    e = corner_errors(s, cam)
+    r_all, e_all = e["r"], e["radial"]
     out = []
     for lo, hi in itertools.pairwise(RADII):
         sel = (r_all >= lo) & (r_all < hi) & np.isfinite(e_all)
@@ -137,7 +163,7 @@ def seeds_table(n_seeds: int, presets: list[str], diagnose: bool, cache: Path | 
         preset, offset, model, k = SEED_PRESETS[name]
         cam = Camera.preset(preset)
         row: dict[str, Any] = {"model": model, "seeds": [], "corners": [], "centers": [],
-                               "true_noise": [], "bias": []}
+                               "true_noise": [], "true_own": [], "bias": [], "rim": []}
         t0 = time.monotonic()
         for seed in (s + offset for s in BOARD_SEEDS[:n_seeds]):
             s = realistic_views(preset, seed, cache, per_frame)
@@ -147,12 +173,20 @@ def seeds_table(n_seeds: int, presets: list[str], diagnose: bool, cache: Path | 
             line = (f"  {name} {seed}: corners {row['corners'][-1]:.4f} "
                     f"centres {row['centers'][-1]:.4f}")
             if diagnose:
+                e = corner_errors(s, cam)
+                own = float(np.sqrt(np.nanmean(e["err"] ** 2)))  # per axis
                 row["true_noise"].append(solve(true_plus_noise(s, seed), name, "corners"))
+                row["true_own"].append(solve(true_plus_noise(s, seed, own), name, "corners"))
                 row["bias"].append(radial_bias(s, cam))
-                line += (f"  true+0.03 {row['true_noise'][-1]:.4f}  radial bias "
-                         + " ".join(f"{b:+.4f}" for _, b, _ in row["bias"][-1]))
+                row["rim"].append(rim_errors(e))
+                n, rb, rms, sig = row["rim"][-1]
+                line += (f"  true+0.03 {row['true_noise'][-1]:.4f}  true+{own:.3f} "
+                         f"{row['true_own'][-1]:.4f}  radial bias "
+                         + " ".join(f"{b:+.4f}" for _, b, _ in row["bias"][-1])
+                         + f"  rim: {n} corners, radial {rb:+.3f} RMS {rms:.3f} "
+                         f"sigma {sig:.3f}")
             print(line, flush=True)
-        for key in ("corners", "centers", "true_noise"):
+        for key in ("corners", "centers", "true_noise", "true_own"):
             v = np.array(row[key], float)
             if len(v):
                 row[key + "_mean"], row[key + "_worst"] = float(np.nanmean(v)), float(np.nanmax(v))
@@ -166,5 +200,12 @@ def seeds_table(n_seeds: int, presets: list[str], diagnose: bool, cache: Path | 
                   f"{row['true_noise_worst']:.4f}; radial bias by r/half-diagonal "
                   + " ".join(f"[{lo:.2f}] {x:+.4f}"
                              for lo, x in zip(RADII, b, strict=False)), flush=True)
+            rim = np.array(row["rim"], float)
+            n = rim[:, 0]
+            print(f"        true corners + their own RMS error: {row['true_own_mean']:.4f} / "
+                  f"{row['true_own_worst']:.4f}; beyond {RIM:.0%} of the half diagonal "
+                  f"{int(n.sum())} corners, radial {np.nansum(n * rim[:, 1]) / n.sum():+.3f} "
+                  f"RMS {np.sqrt(np.nansum(n * rim[:, 2] ** 2) / n.sum()):.3f} px, "
+                  f"median sigma {np.nanmedian(rim[:, 3]):.3f}", flush=True)
         results[name] = row
     return results
