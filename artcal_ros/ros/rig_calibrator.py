@@ -35,6 +35,7 @@ from typing import Any
 from diagnostic_msgs.msg import DiagnosticArray
 from rcl_interfaces.msg import ParameterDescriptor
 from rclpy.callback_groups import MutuallyExclusiveCallbackGroup, ReentrantCallbackGroup
+from rclpy.context import Context
 from rclpy.node import Node
 from rclpy.parameter import Parameter
 from sensor_msgs.msg import CameraInfo, CompressedImage, Image
@@ -100,8 +101,9 @@ class RigCalibratorNode(Node):
         ParameterError: a parameter is bad, or a camera's intrinsics to keep are missing.
     """
 
-    def __init__(self, *, node_name: str = "calibrator", transport: str = "") -> None:
-        super().__init__(node_name)
+    def __init__(self, *, node_name: str = "calibrator", transport: str = "",
+                 context: Context | None = None) -> None:
+        super().__init__(node_name, context=context)
         self.transport = transport or "as the process's Fast DDS setup"
         self.params: dict[str, ParamValue] = declare_parameters(self)
         names = tuple(str(n) for n in self.params["cameras"])  # type: ignore[union-attr]

@@ -92,9 +92,9 @@ class StereoStreamer:
     """Publishes the frames on left/image and right/image round and round, stamped now
     (right 3 ms after left, within sync_tolerance), one rig frame every PERIOD_S."""
 
-    def __init__(self, probe: Probe, frames: StereoFrames) -> None:
+    def __init__(self, probe: Probe, frames: StereoFrames, namespace: str = "") -> None:
         self.node = probe.node
-        self.pubs = {n: probe.node.create_publisher(Image, f"/{n}/image", RELIABLE)
+        self.pubs = {n: probe.node.create_publisher(Image, f"{namespace}/{n}/image", RELIABLE)
                      for n in frames.rig.names}
         self.frames = frames
         self._stop = threading.Event()
@@ -290,3 +290,47 @@ def test_one_camera_name_is_refused(tmp_path: Path) -> None:
     assert rc == 2, text
     assert "parameter 'cameras'" in text and "names one camera" in text, text
     assert "Traceback" not in text, text
+
+
+RIG_THREADS = {"measure rig views", "live solve", "spin executor"}
+
+
+def test_no_rig_node_thread_outlives_stop(tmp_path: Path, probe: Probe,
+                                         stereo: StereoFrames) -> None:
+    # In process: the rig node's threads (the rig stream's, each camera's live solve) run
+    # while it collects, and none is left once its stop() and shut_down() returned.
+    import rclpy
+    from rclpy.context import Context
+    from rclpy.executors import MultiThreadedExecutor
+
+    from artcal_ros.ros.rig_calibrator import RigCalibratorNode
+    from artcal_ros.ros.signals import ExecutorSpin, shut_down
+
+    name = "rig_threads"
+    before = set(threading.enumerate())
+    context = Context()
+    rclpy.init(args=["--ros-args", "-r", f"__ns:=/{name}", "-p", "cameras:=[left,right]",
+                     "-p", "min_views:=3", "-p", f"output_file:={tmp_path / 'unused.yaml'}"],
+               context=context)
+    try:
+        node = RigCalibratorNode(node_name=name, context=context)
+        executor = MultiThreadedExecutor(num_threads=4, context=context)
+        executor.add_node(node)
+        spin = ExecutorSpin(executor)
+        running = [t for t in threading.enumerate() if t not in before]
+        assert sorted(t.name for t in running if t.name == "live solve") == ["live solve"] * 2
+        assert {t.name for t in running} >= RIG_THREADS, running
+        streamer = StereoStreamer(probe, stereo, namespace=f"/{name}")
+        try:
+            # every camera's live solve made an estimate of its views
+            wait_until(lambda: all(s.estimate is not None
+                                   for s in node.status.cameras.values()), 120.0,
+                       "both cameras' live estimates")
+        finally:
+            streamer.stop()
+        assert node.stop(timeout=10.0) == []
+        shut_down(node, spin)
+    finally:
+        rclpy.try_shutdown(context=context)
+    left = sorted(t.name for t in running if t.is_alive() and t.name in RIG_THREADS)
+    assert left == [], f"threads outlived the rig node's stop: {left}"

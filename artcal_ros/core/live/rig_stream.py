@@ -241,10 +241,10 @@ class RigStream(BackgroundTier[_Job]):
 
     @property
     def backlog(self) -> int:
-        """Jobs waiting for the worker now (rig frames to measure, a solve or report): a
-        glance taken without the lock, for work that should wait while there are some (the
-        cameras' live solves)."""
-        return len(self._queue)
+        """Work for the worker now: rig views waiting for or in precise detection, and
+        queued calls (a solve, a report). For work that should wait while there is some
+        (the cameras' live solves); it takes only the views' lock, never the worker's."""
+        return max(len(self._queue), self.views.pending)
 
     def queued(self) -> int:
         """Rig frames waiting for (or in) precise detection."""
