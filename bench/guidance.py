@@ -1,7 +1,9 @@
 """Does next-pose guidance need fewer views? Simulated sessions against a known camera.
 
-    python -m bench.guidance              # webcam, hd, wide, webcam with an A4 board: 20 sessions
-                                          # each (~40 min on 2 busy cores)
+    python -m bench.guidance              # webcam, hd, wide, each with the default and an A4
+                                          # board: 20 sessions each (hours on 2 busy cores)
+    python -m bench.guidance --cases hd:a4 --json hd_a4.json   # one case (run several at once)
+    python -m bench.guidance --merge *.json                    # their tables together
     python -m bench.guidance --quick      # webcam, 2 sessions of 8 views (~30 s)
 
 Each session starts from the same 3 random views (poses and noise) for every strategy, then
@@ -77,7 +79,7 @@ BOARD = Board()
 # A board printed on A4 paper: 7 x 5 markers of 30 mm, 10 mm apart (270 x 190 mm)
 A4_BOARD = Board(cols=7, rows=5, marker_length=0.03, marker_separation=0.01)
 BOARDS = {"default": BOARD, "a4": A4_BOARD}
-CASES = ("webcam", "hd", "wide", "webcam:a4")
+CASES = ("webcam", "hd", "wide", "webcam:a4", "hd:a4", "wide:a4")
 STRATEGIES = ("guided", "random", "bars")
 THRESHOLDS_PX = (0.1, 0.05)
 NOISE_PX = 0.04
@@ -393,11 +395,13 @@ MEASURES: tuple[tuple[str, Callable[[Session], int | None]], ...] = (
 
 
 def run(cases: tuple[str, ...], sessions: int, max_views: int, *,
-        log: Callable[[str], None] = print) -> dict[str, Any]:
+        log: Callable[[str], None] = print,
+        progress: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
     """Every session of every case and strategy; the rows of the tables.
 
     Args:
         cases: "preset" or "preset:board" (a name of BOARDS; default: the default board).
+        progress: called with the result so far after every session's three strategies.
     """
     out: dict[str, Any] = {"cases": {}, "max_views": max_views, "sessions": sessions}
     for case in cases:
@@ -415,18 +419,26 @@ def run(cases: tuple[str, ...], sessions: int, max_views: int, *,
                 log(f"{label} session {k} {strategy}: views "
                     + ", ".join(f"{name} {fn(s)}" for name, fn in MEASURES)
                     + f"; frames {s.frames_seen}, {time.perf_counter() - t0:.1f} s")
-        out["cases"][label] = {
-            "sessions": {st: [{"seed": s.seed, "difference_px": s.difference_px,
-                               "uncertainty_px": s.uncertainty_px,
-                               "frames_seen": s.frames_seen} for s in ss]
-                         for st, ss in per.items()},
-            "views": {st: {name: [fn(s) for s in ss] for name, fn in MEASURES}
-                      for st, ss in per.items()},
-            "next_pose_s_at_40": time_next_pose(preset, board=board),
-            "next_pose_s_in_sessions": statistics.median([t for _, t in timings])
-            if timings else math.nan,
-        }
+            out["cases"][label] = _case_result(per, timings, math.nan)
+            if progress is not None:
+                progress(out)
+        out["cases"][label] = _case_result(per, timings, time_next_pose(preset, board=board))
     return out
+
+
+def _case_result(per: dict[str, list[Session]], timings: list[tuple[int, float]],
+                 next_pose_s_at_40: float) -> dict[str, Any]:
+    return {
+        "sessions": {st: [{"seed": s.seed, "difference_px": s.difference_px,
+                           "uncertainty_px": s.uncertainty_px,
+                           "frames_seen": s.frames_seen} for s in ss]
+                     for st, ss in per.items()},
+        "views": {st: {name: [fn(s) for s in ss] for name, fn in MEASURES}
+                  for st, ss in per.items()},
+        "next_pose_s_at_40": next_pose_s_at_40,
+        "next_pose_s_in_sessions": statistics.median([t for _, t in timings])
+        if timings else math.nan,
+    }
 
 
 def _median(counts: list[int | None], max_views: int) -> float:
@@ -479,6 +491,20 @@ def markdown_differences(result: dict[str, Any], at: tuple[int, ...] = (10, 20, 
     return "\n".join(lines)
 
 
+def merged(paths: list[Path]) -> dict[str, Any]:
+    """The cases of several runs written by ``--json`` as one result (same sessions and
+    views each)."""
+    runs = [json.loads(p.read_text()) for p in paths]
+    if len({r["max_views"] for r in runs}) != 1:
+        raise SystemExit("--merge: the runs differ in --max-views")
+    out: dict[str, Any] = {"cases": {}, "max_views": runs[0]["max_views"]}
+    for r in runs:
+        out["cases"].update(r["cases"])
+    # a run stopped early holds fewer sessions than asked for: say the fewest
+    out["sessions"] = min(len(c["sessions"]["guided"]) for c in out["cases"].values())
+    return out
+
+
 def main(argv: list[str] | None = None) -> int:
     parser = argparse.ArgumentParser(prog="python -m bench.guidance", description=__doc__,
                                      formatter_class=argparse.RawDescriptionHelpFormatter)
@@ -488,12 +514,24 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--sessions", type=int, default=20)
     parser.add_argument("--max-views", type=int, default=40)
     parser.add_argument("--json", type=Path, help="write every session's figures here")
+    parser.add_argument("--merge", type=Path, nargs="+", metavar="JSON",
+                        help="print the tables of runs written by --json (e.g. one per case, "
+                        "run at once) instead of running")
     args = parser.parse_args(argv)
     cases = ("webcam",) if args.quick else tuple(args.cases.split(","))
     sessions = 2 if args.quick else args.sessions
     max_views = 8 if args.quick else args.max_views
     start = time.perf_counter()
-    result = run(cases, sessions, max_views)
+    if args.merge:
+        result = merged(args.merge)
+        sessions, max_views = result["sessions"], result["max_views"]
+    else:
+        json_path = args.json
+
+        def save(partial: dict[str, Any]) -> None:
+            if json_path is not None:
+                json_path.write_text(json.dumps(partial, indent=1))
+        result = run(cases, sessions, max_views, progress=save)
     print(f"\nviews needed to reach a true projection difference, median of {sessions} "
           f"sessions (at most {max_views} views; {START_VIEWS} shared random views first; "
           f"corner noise {NOISE_PX} px)\n")

@@ -11,6 +11,8 @@ from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate.quality import (
     intrinsic_covariance,
     parameter_effect_px,
+    projection_difference,
+    solution_camera,
 )
 from artcal_ros.core.calibrate.solve import (
     Solution,
@@ -213,3 +215,55 @@ def test_no_suggestion_without_a_usable_covariance(centre_session) -> None:
     assert next_pose(views, sol, BOARD, SIZE,
                      covariance=(np.full((p, p), np.inf), 0.04)) is None
     assert next_pose([], sol, BOARD, SIZE) is None
+
+
+def _random_holdable_pose(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray]:
+    return holdable_pose(CAM.K, BOARD, SIZE, anchor=(float(rng.uniform()), float(rng.uniform())),
+                         fill=float(rng.uniform(0.2, 0.8)),
+                         tilt_direction_deg=float(rng.uniform(0.0, 360.0)),
+                         tilt_deg=float(rng.uniform(0.0, 50.0)),
+                         roll_deg=float(rng.uniform(-15.0, 15.0)))
+
+
+def _solve_with(views: list[ViewPoints], sol: Solution, new: ViewPoints) -> Solution:
+    """The bundle adjustment of ``views`` and ``new``, started from ``sol``."""
+    r0, t0 = estimate_pose(new, sol.camera_matrix, sol.dist_coeffs, sol.model)
+    K, D, rv, tv = bundle_adjust([*views, new], sol.camera_matrix, sol.dist_coeffs, sol.model,
+                                 free=sol.free, poses=(np.vstack([sol.rvecs, r0]),
+                                                       np.vstack([sol.tvecs, t0])))
+    return Solution(K, D, sol.model, rv, tv, sol.free)
+
+
+def test_the_suggested_view_brings_more_than_random_holdable_views() -> None:
+    # Four random views, then one more: the suggested one or a random holdable one, each
+    # solved; information gained = 1 / RMS^2 after - before.
+    rng = np.random.default_rng(2310)
+    views: list[ViewPoints] = []
+    while len(views) < 4:
+        v = _view(*_random_holdable_pose(rng), len(views), rng)
+        if len(v.object_points) >= 24:
+            views.append(v)
+    sol, _ = solve(views, SIZE, "plumb_bob")
+    before = _uncertainty_rms(views, sol)
+    s = next_pose(views, sol, BOARD, SIZE)
+    assert s is not None
+
+    def gain(rvec: np.ndarray, tvec: np.ndarray) -> tuple[float, float]:
+        """(information gained, true projection difference over the solve's uncertainty)"""
+        new = _view(rvec, tvec, len(views), rng)
+        after = _solve_with(views, sol, new)
+        u = _uncertainty_rms([*views, new], after)
+        diff = projection_difference(CAM, solution_camera(after, SIZE))[0]
+        return 1.0 / u ** 2 - 1.0 / before ** 2, diff / u
+
+    guided, honesty = gain(s.rvec, s.tvec)
+    randoms = []
+    while len(randoms) < 8:
+        r, t = _random_holdable_pose(rng)
+        if len(_view(r, t, 0, rng).object_points) >= 24:
+            randoms.append(gain(r, t)[0])
+    assert guided > 1.5 * float(np.median(randoms))
+    assert guided > 0.8 * max(randoms)
+    # and the gain is real: the solve with the suggested view is as close to the true camera
+    # as its (smaller) uncertainty says (one solve's difference scatters 0.5-2x around it)
+    assert honesty < 2.5
