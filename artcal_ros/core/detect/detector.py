@@ -91,6 +91,7 @@ class DetectorConfig:
         pool_lens: pool the lens estimate over a Detector's frames (one camera per
             detector; :meth:`Detector.reset_lens` forgets).
         adaptive_window_max: largest adaptive-threshold window of the quad finder, pixels.
+        half_search_above_px: quads searched at half size first from this short side, px (0: off).
         edge_shift: remove each view's edge shift, measured from its markers' size against
             their pitch (:mod:`.edge_shift`); in a far over-exposed frame whose sides
             scatter, also move the corners toward the sides its neighbours place.
@@ -114,6 +115,7 @@ class DetectorConfig:
     neighbour_tolerance: float = 0.25
     min_side_px: float = 6.0
     adaptive_window_max: int = 33
+    half_search_above_px: int = 0
     edge_shift: bool = True
     censor_clipped: bool = True
     grid_search: bool = True
@@ -215,8 +217,8 @@ class Detector:
         if board.n_markers:
             self._candidates = CandidateFinder(
                 board, adaptive_window_max=self.config.adaptive_window_max,
-                decode_rejected=self.config.decode_rejected,
-                min_side_px=self.config.min_side_px)
+                decode_rejected=self.config.decode_rejected, min_side_px=self.config.min_side_px,
+                half_above_px=self.config.half_search_above_px)
         self._lens_pool = LensPool()
         self._tone_pool = TonePool()
         # ChArUco markers sit sqrt(2) squares apart at the closest (see neighbour_support)
