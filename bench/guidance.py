@@ -396,12 +396,14 @@ MEASURES: tuple[tuple[str, Callable[[Session], int | None]], ...] = (
 
 def run(cases: tuple[str, ...], sessions: int, max_views: int, *,
         log: Callable[[str], None] = print,
-        progress: Callable[[dict[str, Any]], None] | None = None) -> dict[str, Any]:
+        progress: Callable[[dict[str, Any]], None] | None = None,
+        first: int = 0) -> dict[str, Any]:
     """Every session of every case and strategy; the rows of the tables.
 
     Args:
         cases: "preset" or "preset:board" (a name of BOARDS; default: the default board).
         progress: called with the result so far after every session's three strategies.
+        first: the first session's number (its seed SEED + first).
     """
     out: dict[str, Any] = {"cases": {}, "max_views": max_views, "sessions": sessions}
     for case in cases:
@@ -410,7 +412,7 @@ def run(cases: tuple[str, ...], sessions: int, max_views: int, *,
         label = f"{preset}, {board_name or 'default'} board"
         per: dict[str, list[Session]] = {s: [] for s in STRATEGIES}
         timings: list[tuple[int, float]] = []
-        for k in range(sessions):
+        for k in range(first, first + sessions):
             for strategy in STRATEGIES:
                 t0 = time.perf_counter()
                 s = run_session(preset, strategy, SEED + k, max_views, board=board,
@@ -499,7 +501,17 @@ def merged(paths: list[Path]) -> dict[str, Any]:
         raise SystemExit("--merge: the runs differ in --max-views")
     out: dict[str, Any] = {"cases": {}, "max_views": runs[0]["max_views"]}
     for r in runs:
-        out["cases"].update(r["cases"])
+        for label, case in r["cases"].items():
+            if label not in out["cases"]:
+                out["cases"][label] = case
+                continue
+            have = out["cases"][label]  # the same case run in parts (--first): sessions joined
+            for st in STRATEGIES:
+                have["sessions"][st] += case["sessions"][st]
+                for name, _ in MEASURES:
+                    have["views"][st][name] += case["views"][st][name]
+            if not math.isfinite(have["next_pose_s_at_40"]):
+                have["next_pose_s_at_40"] = case["next_pose_s_at_40"]
     # a run stopped early holds fewer sessions than asked for: say the fewest
     out["sessions"] = min(len(c["sessions"]["guided"]) for c in out["cases"].values())
     return out
@@ -513,6 +525,8 @@ def main(argv: list[str] | None = None) -> int:
                         help="preset[:board] list, boards: " + ", ".join(BOARDS))
     parser.add_argument("--sessions", type=int, default=20)
     parser.add_argument("--max-views", type=int, default=40)
+    parser.add_argument("--first", type=int, default=0,
+                        help=f"number of the first session (seed {SEED} + this)")
     parser.add_argument("--json", type=Path, help="write every session's figures here")
     parser.add_argument("--merge", type=Path, nargs="+", metavar="JSON",
                         help="print the tables of runs written by --json (e.g. one per case, "
@@ -531,7 +545,7 @@ def main(argv: list[str] | None = None) -> int:
         def save(partial: dict[str, Any]) -> None:
             if json_path is not None:
                 json_path.write_text(json.dumps(partial, indent=1))
-        result = run(cases, sessions, max_views, progress=save)
+        result = run(cases, sessions, max_views, progress=save, first=args.first)
     print(f"\nviews needed to reach a true projection difference, median of {sessions} "
           f"sessions (at most {max_views} views; {START_VIEWS} shared random views first; "
           f"corner noise {NOISE_PX} px)\n")
