@@ -103,13 +103,14 @@ class CandidateFinder:
         if 0 < self.half_above_px <= min(gray8.shape[:2]):
             quads, ids = self._search(half_image(gray8), lin, half=True)
             modules = shortest_sides(quads) / (2 * (self.board.bits + 2))
-            self.full_searched = not len(ids) or np.median(modules) < _HALF_MIN_MODULE_PX
+            self.full_searched = bool(not len(ids) or np.median(modules) < _HALF_MIN_MODULE_PX)
             if self.full_searched:
+                # the full image's quads first: small markers' half-image quads are coarse
                 near = self.near_misses
                 fq, fids = self._search(gray8, lin, half=False)
-                new = ~np.isin(fids, ids)
-                quads = np.concatenate([quads, fq[new]])
-                ids = np.concatenate([ids, fids[new]])
+                new = ~np.isin(ids, fids)
+                quads = np.concatenate([fq, quads[new]])
+                ids = np.concatenate([fids, ids[new]])
                 self.near_misses = np.concatenate([near, self.near_misses])
         else:
             quads, ids = self._search(gray8, lin, half=False)
@@ -143,7 +144,8 @@ class CandidateFinder:
         ``patterns`` (default: the board's, unclipped). ``half``: ``gray8`` is the half
         image; the quads are returned in full-resolution pixels."""
         aruco = self._aruco_half if half else self._aruco
-        corners, ids_cv, rejected = aruco.detectMarkers(gray8)
+        corners, ids_cv, found = aruco.detectMarkers(gray8)
+        rejected: Any = found
         if ids_cv is None or len(ids_cv) == 0:
             quads: np.ndarray = np.zeros((0, 4, 2))
             ids: np.ndarray = np.zeros(0, dtype=np.int64)
