@@ -6,7 +6,8 @@ back: ``image`` (8-bit grey for the quad finder, linear light for everything
 else) -> ``candidates`` (OpenCV's quads and ids, and ``decode`` of the quads it
 rejected) -> ``edges`` (blurred-step edge fit, ``step_model``, with the lens
 given or estimated by ``plumb``; side geometry in ``sides``; the pixels across
-the sides read by ``profiles``) -> ``verify`` -> ``centers``. All of them read
+the sides read by ``profiles``; ``light`` the light's slope along each side, from the
+frame's light field) -> ``verify`` -> ``centers``. All of them read
 pixels through ``sampling``; ``patterns`` holds what the board prints, ``lens``
 the lens models, ``tone`` the tone curve (estimated from the edge fits), ``edge_shift``
 the per-view edge shift removed from the corners; ``exposure`` says whether a frame is
@@ -33,7 +34,7 @@ test/unit/test_layout.py checks both::
     2  candidates   grid_search   rim   chessboard   charuco   circles
     3  decode   edges   exposure   verify   circle_grid
     4  plumb    centers
-    5  sides
+    5  sides    light
     6  step_model   saddle   lens   image   patterns   profiles   tone   edge_shift
     7  sampling   linalg   workers
 """

@@ -26,6 +26,7 @@ from typing import Any
 import numpy as np
 
 from artcal_ros.core.detect.lens import Lens, LensPool
+from artcal_ros.core.detect.light import fit_in_light
 from artcal_ros.core.detect.linalg import nanmedian_rows
 from artcal_ros.core.detect.plumb import estimate_division, lens_bend
 from artcal_ros.core.detect.profiles import coarse_offsets, gather_samples
@@ -383,8 +384,14 @@ def _model_passes(lin: np.ndarray, sides: SideLayout, model: SideModel,
                         sides=few)[2]
             fit_blur = np.full(S, float(np.median(pilot[few])) if len(few) else 0.6)
         contrast = np.zeros(S)
-        coef, cov, fit_blur = fit(coef0=model.coef, blur0=fit_blur, iterations=_FIT_STEPS,
-                                  contrast_out=contrast)
+        first = fit(coef0=model.coef, blur0=fit_blur, iterations=_FIT_STEPS,
+                    contrast_out=contrast)
+        (coef, cov, fit_blur), scaled = fit_in_light(   # (no light field of clipped light)
+            partial(fit_step_model, samples=samples, tol_px=_FIT_TOL_PX, iterations=_FIT_STEPS,
+                    censor_at=settings.censor_at), values, basis[:, 1], sid, first, contrast,
+            a, u, model.length, (used >= 4) & (settings.censor_at is None))
+        fit = partial(fit_step_model, scaled, samples, tol_px=_FIT_TOL_PX,
+                      censor_at=settings.censor_at)
         if settings.censor_at is not None and rows:
             # (only sides that are clipped: a frame may be clipped away from the board)
             clipped = np.bincount(sid, weights=values >= settings.censor_at, minlength=S) >= 3
