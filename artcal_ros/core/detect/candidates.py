@@ -9,7 +9,8 @@ quads refined from their edges. Only ids on the board survive, each once.
 A large image may be searched at half resolution (a 2 x 2 mean of the 8-bit copy): the
 quads found there are scaled back to full-resolution pixels and decoded and refined there.
 Where the half image finds no marker, or its markers' modules are too small to threshold
-there, the full-resolution search runs as well.
+there, the full-resolution search runs as well; mixed boards and clipped frames are
+searched at full resolution only.
 """
 
 from __future__ import annotations
@@ -22,7 +23,7 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect.decode import PatternTable, decode_quads
 from artcal_ros.core.detect.edges import refine_quads, same_edges
-from artcal_ros.core.detect.exposure import saturation_image
+from artcal_ros.core.detect.exposure import is_clipped, saturation_image
 from artcal_ros.core.detect.sampling import border_is_dark
 from artcal_ros.core.homography import shortest_sides
 
@@ -100,7 +101,10 @@ class CandidateFinder:
         """
         self.near_misses = np.zeros((0, 4, 2))
         self.full_searched = True
-        if 0 < self.half_above_px <= min(gray8.shape[:2]):
+        # not for mixed boards, whose narrow quiet zones blur shut at half resolution, nor
+        # for clipped frames, whose saturation mask loses the thin borders there
+        if (0 < self.half_above_px <= min(gray8.shape[:2])
+                and self.board.polarity in ("black", "white") and not is_clipped(gray8)):
             quads, ids = self._search(half_image(gray8), lin, half=True)
             modules = shortest_sides(quads) / (2 * (self.board.bits + 2))
             self.full_searched = bool(not len(ids) or np.median(modules) < _HALF_MIN_MODULE_PX)
