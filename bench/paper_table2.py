@@ -274,3 +274,30 @@ def table2_camera(camera: str, n_poses: int, seed: int) -> list[dict[str, Any]]:
             row["proj RMS"], row["proj max"] = projection_difference(cam, est)
         rows.append(row)
     return rows
+
+
+def pool_seeds(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
+    """One row per (camera, method, board) from the rows of several pose seeds: the mean of
+    each column over the seeds, the largest of the ``max`` columns; ``seeds`` counts them."""
+    groups: dict[tuple[str, str, str], list[dict[str, Any]]] = {}
+    for row in rows:
+        groups.setdefault((row["camera"], row["method"], row["board"]), []).append(row)
+    pooled = []
+    for (camera, method, board), same in groups.items():
+        row: dict[str, Any] = {"camera": camera, "method": method, "board": board,
+                               "seeds": len(same)}
+        for key in same[0]:
+            values = [r[key] for r in same if isinstance(r.get(key), float)]
+            if key in row or not values:
+                continue
+            finite = [v for v in values if math.isfinite(v)]
+            # a seed without a calibration makes the pooled figure missing too
+            if len(finite) < len(values):
+                row[key] = math.nan
+            else:
+                row[key] = max(finite) if key in ("max", "proj max") else float(np.mean(finite))
+        errors = [r["error"] for r in same if "error" in r]
+        if errors:
+            row["error"] = f"{len(errors)} of {len(same)} seeds: {errors[0]}"
+        pooled.append(row)
+    return pooled
