@@ -8,9 +8,10 @@ quads refined from their edges. Only ids on the board survive, each once.
 
 A large image may be searched at half resolution (a 2 x 2 mean of the 8-bit copy): the
 quads found there are scaled back to full-resolution pixels and decoded and refined there.
-Where the half image finds no marker, or its markers' modules are too small to threshold
-there, the full-resolution search runs as well; mixed boards and clipped frames are
-searched at full resolution only.
+Where the markers the half image finds have modules too small to threshold there, the
+full-resolution search runs as well (markers of 1.25 px modules there are still read, on
+their quads' full-resolution pixels, so a frame with none found is taken as empty). Mixed
+boards and clipped frames are searched at full resolution only.
 """
 
 from __future__ import annotations
@@ -107,7 +108,7 @@ class CandidateFinder:
                 and self.board.polarity in ("black", "white") and not is_clipped(gray8)):
             quads, ids = self._search(half_image(gray8), lin, half=True)
             modules = shortest_sides(quads) / (2 * (self.board.bits + 2))
-            self.full_searched = bool(not len(ids) or np.median(modules) < _HALF_MIN_MODULE_PX)
+            self.full_searched = bool(len(ids) and np.median(modules) < _HALF_MIN_MODULE_PX)
             if self.full_searched:
                 # the full image's quads first: small markers' half-image quads are coarse
                 near = self.near_misses
