@@ -115,7 +115,7 @@ class DetectorConfig:
     neighbour_tolerance: float = 0.25
     min_side_px: float = 6.0
     adaptive_window_max: int = 33
-    half_search_above_px: int = 0
+    half_search_above_px: int = 1000
     edge_shift: bool = True
     censor_clipped: bool = True
     grid_search: bool = True
