@@ -173,11 +173,13 @@ class _Frame:
 @dataclass(frozen=True)
 class _Exposure:
     """A frame's exposure: clipped, its ink's level (share of saturation; 0 unless something
-    saturates), and whether the edge fit censors saturated samples."""
+    saturates), whether the edge fit censors saturated samples, and whether it may refit
+    sides in the frame's light field (not where anything saturates: :mod:`.light`)."""
 
     clipped: bool
     ink: float
     censor: bool
+    light: bool
 
 
 class _Markers(NamedTuple):
@@ -192,7 +194,7 @@ class _Markers(NamedTuple):
 class _Edges:
     """The edge stage's outcome: the frame (read through the tone curve the fit settled on),
     the markers whose edges fit and their borders' darkness (N,), the lens the centres are
-    taken through, the one the sides were bent by, and the fit's saturation level."""
+    taken through, the one the sides were bent by, the fit's saturation level and light."""
 
     frame: _Frame
     markers: _Markers
@@ -200,6 +202,7 @@ class _Edges:
     lens: Lens | None
     fit_lens: Lens | None = None
     censor_at: float | None = None
+    light: bool = True
 
 
 class Detector:
@@ -275,14 +278,13 @@ class Detector:
 
     def _refine(self, lin: np.ndarray, quads: np.ndarray, dark: np.ndarray, ids: np.ndarray,
                 lens: Lens | None, probe: ToneProbe | None, censor_at: float | None = None,
-                pool: bool = True) -> EdgeFit:
+                light: bool = True, pool: bool = True) -> EdgeFit:
         """The edge fit of every quad (:func:`refine_quads` with this detector's settings;
-        ``censor_at``: samples at or above this linear level are censored; ``pool``: the
-        frame's lens evidence joins the pool)."""
+        ``censor_at``: samples at or above this linear level are censored; ``light``: sides
+        refitted in the light field; ``pool``: the frame's lens evidence joins the pool)."""
         return refine_quads(lin, quads, dark, self.board.bits, margin_px=self.config.margin_px,
                             curve_min_px=self.config.curve_min_px, passes=1,
-                            allow_curvature=lens is None and self.config.estimate_lens,
-                            lens=lens,
+                            allow_curvature=lens is None and self.config.estimate_lens, lens=lens,
                             inner_same=inner_border_cells(self.board, ids,
                                                           rows=self.config.code_rows),
                             quiet_modules=self._quiet_modules,
@@ -290,8 +292,7 @@ class Detector:
                             beyond_modules=self._quiet_modules,
                             lens_pool=self._lens_pool if self.config.pool_lens and pool
                             else None,
-                            tone_probe=probe,
-                            censor_at=censor_at)
+                            tone_probe=probe, censor_at=censor_at, light_field=light)
 
     def _dark(self, ids: np.ndarray) -> np.ndarray:
         """(N,) bool: the board prints these markers with a dark border."""
@@ -377,15 +378,14 @@ class Detector:
     def _exposure(self, frame: _Frame, quads: np.ndarray) -> _Exposure:
         """Whether the frame clips, how dark its ink reads, and whether the fit censors."""
         clipped = is_clipped(frame.gray8)
-        # censoring the saturated samples makes a clipped edge's fit consistent while its
-        # transition still shows; once the ink itself nears saturation only a sliver
-        # of it does, and the edge of the clipped plateau is the steadier measure. A
-        # frame clipped in part (a brighter patch of light) is censored too: only the
-        # sides with saturated samples are fitted differently
+        # censoring saturated samples keeps a clipped edge's fit consistent while its
+        # transition shows; once the ink nears saturation the clipped plateau's edge is
+        # steadier. A frame clipped in part is censored too (only its saturated sides)
         saturated = clipped or saturates(frame.gray8)
         ink = dark_level(frame.lin, quads, self.board.bits) if saturated else 0.0
         return _Exposure(clipped, ink,
-                         self.config.censor_clipped and saturated and ink < _CENSOR_BELOW)
+                         self.config.censor_clipped and saturated and ink < _CENSOR_BELOW,
+                         not saturated)
 
     def _fit_edges(self, edges: _Edges, quads: np.ndarray, exposure: _Exposure) -> _Edges:
         """The edge fit of the candidates (``edges``: as found, with the given lens); a
@@ -395,7 +395,7 @@ class Detector:
         probe = self._probe(frame.curve) if frame.probing else None
         censor_at = (censor_level(frame.curve, frame.gray, frame.gray8) if exposure.censor
                      else None)
-        fit = self._refine(frame.lin, quads, dark, ids, lens, probe, censor_at)
+        fit = self._refine(frame.lin, quads, dark, ids, lens, probe, censor_at, exposure.light)
         if probe is not None:
             probe.commit()
             better = self._tone_pool.estimate().curve
@@ -406,11 +406,10 @@ class Detector:
                 frame = replace(frame, curve=better, lin=better.linearise(frame.gray))
                 censor_at = (censor_level(better, frame.gray, frame.gray8) if exposure.censor
                              else None)
-                fit = self._refine(frame.lin, quads, dark, ids, lens, None, censor_at)
-        # a lens estimated from this frame's edges bends the fitted sides; it moves
-        # the centers too once it is determined better than "no distortion" is
-        # (|lam| above its standard deviation; a noisier one would add more error
-        # to them than the distortion it removes)
+                fit = self._refine(frame.lin, quads, dark, ids, lens, None, censor_at,
+                                   exposure.light)
+        # a lens estimated here bends the fitted sides; it moves the centres too once it is
+        # known better than "no distortion" (|lam| above its standard deviation)
         if isinstance(fit.lens, DivisionLens) and fit.lens.significance >= 1.0:
             lens = fit.lens
         keep = fit.ok & same_edges(fit.corners_px, quads)
@@ -418,7 +417,7 @@ class Detector:
         keep &= _clear_of_edge(fit.corners_px, *frame.size, 0.5)
         markers = _Markers(ids[keep], np.asarray(fit.corners_px[keep], dtype=np.float64),
                            fit.corner_sigma_px[keep])
-        return _Edges(frame, markers, dark[keep], lens, fit.lens, censor_at)
+        return _Edges(frame, markers, dark[keep], lens, fit.lens, censor_at, exposure.light)
 
     def _verify(self, lin: np.ndarray, edges: _Edges, clipped: bool
                 ) -> tuple[_Markers, tuple[np.ndarray, np.ndarray]]:
@@ -455,7 +454,8 @@ class Detector:
         found = read_through_lens(
             lin, lens, self._candidates.near_misses, markers.ids, self._candidates.patterns,
             self.board.bits, lambda q, i: self._refine(lin, q, self._dark(i), i, lens, None,
-                                                        edges.censor_at, pool=False), keep)
+                                                        edges.censor_at, edges.light,
+                                                        pool=False), keep)
         return _Markers(*(cat([a, b]) for a, b in zip(markers, found, strict=True)))
 
     def _grid_search(self, lin: np.ndarray, markers: _Markers,
@@ -467,7 +467,7 @@ class Detector:
             lin, markers.ids, markers.corners_px, markers.sigma_px, self.board,
             self._candidates.clipped_patterns,
             lambda q, i: self._refine(lin, q, self._dark(i), i, edges.lens, None,
-                                      edges.censor_at, pool=False),
+                                      edges.censor_at, edges.light, pool=False),
             min_side_px=self.config.min_side_px,
             tolerance=self.config.neighbour_tolerance, hints=rejected))
 

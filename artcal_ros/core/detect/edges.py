@@ -11,9 +11,8 @@ lens bends a straight edge, and neighbouring sides are intersected into corners
 The image is read in *linear* intensity: a blurred step is symmetric about its edge in
 linear light, not in gamma-encoded grey values. The caller passes a linearised image.
 
-All arrays are batched over the S = 4 M sides of M markers; side k of a marker
-runs from its corner k to corner k+1 (TL->TR, TR->BR, BR->BL, BL->TL), so
-corner k is the intersection of sides k-1 and k.
+All arrays are batched over the S = 4 M sides of M markers; side k of a marker runs from
+its corner k to corner k+1 (TL->TR, TR->BR, BR->BL, BL->TL): corner k joins sides k-1, k.
 """
 
 from __future__ import annotations
@@ -92,6 +91,7 @@ class EdgeFitSettings:
         max_profiles: most profiles per side (long sides are sampled sparser).
         censor_at: saturation level of the linear image: samples at or above it are
             censored in the model fit (None: none are).
+        light_field: sides refitted in the frame's light field (:mod:`.light`).
     """
 
     bits: int
@@ -103,6 +103,7 @@ class EdgeFitSettings:
     beyond_modules: float = 1.0
     max_profiles: int = 40
     censor_at: float | None = None
+    light_field: bool = True
 
 
 @dataclass(frozen=True)
@@ -150,7 +151,7 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
                  beyond_modules: float = 1.0, max_profiles: int = 40,
                  lens_pool: LensPool | None = None,
                  tone_probe: Callable[..., None] | None = None,
-                 censor_at: float | None = None) -> EdgeFit:
+                 censor_at: float | None = None, light_field: bool = True) -> EdgeFit:
     """Refine approximate quads to sub-pixel corners from their border edges.
 
     Args:
@@ -159,7 +160,7 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         dark_inside: (M,) bool, True where the marker's border is darker than its
             surroundings (black-on-white).
         bits, margin_px, curve_min_px, allow_curvature, passes, quiet_modules,
-            beyond_modules, max_profiles, censor_at: see :class:`EdgeFitSettings`.
+            beyond_modules, max_profiles, censor_at, light_field: see :class:`EdgeFitSettings`.
         lens: optional lens model; every side is then bent as the lens bends a
             straight edge, and only its offset and angle are fitted.
         inner_same, outer_same: see :class:`BorderCells` (from
@@ -178,7 +179,8 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
     settings = EdgeFitSettings(bits, margin_px=margin_px, curve_min_px=curve_min_px,
                                allow_curvature=allow_curvature, passes=passes,
                                quiet_modules=quiet_modules, beyond_modules=beyond_modules,
-                               max_profiles=max_profiles, censor_at=censor_at)
+                               max_profiles=max_profiles, censor_at=censor_at,
+                               light_field=light_field)
     cells = BorderCells(inner_same, outer_same)
     quads = np.asarray(quads, dtype=np.float64)
     lin = np.asarray(lin, dtype=np.float32)
@@ -303,9 +305,8 @@ def _model_passes(lin: np.ndarray, sides: SideLayout, model: SideModel,
                   tone_probe: Callable[[ProbeFit], None] | None = None) -> np.ndarray:
     """Blurred-step model fits (see :mod:`~artcal_ros.core.detect.step_model`); updates ``model``.
 
-    Samples inside the border stay ``settings.margin_px`` inside both neighbouring sides:
-    near an acute corner (a steeply tilted marker) a cut straight inward from the side
-    would otherwise leave the marker through its neighbour.
+    Samples inside the border stay ``settings.margin_px`` inside both neighbouring sides (near
+    an acute corner a cut straight inward would leave the marker through its neighbour).
 
     Args:
         lin: (H, W) float32 linear intensity image.
@@ -316,8 +317,8 @@ def _model_passes(lin: np.ndarray, sides: SideLayout, model: SideModel,
         fit_order: (S,) int, per side: the parabola term free (3) or held at its current
             value (2: a straight line, or a lens-given bend).
         lens: optional lens (places the code cells along each side).
-        start_blur: (S,) the blur the model fit starts from (an earlier pass's), pixels;
-            without, the frame's blur from a pilot fit of every 8th side.
+        start_blur: (S,) the blur the fit starts from (an earlier pass's), pixels; without,
+            the frame's blur from a pilot fit of every 8th side.
         tone_probe: see :func:`refine_quads`.
 
     Returns:
@@ -389,7 +390,7 @@ def _model_passes(lin: np.ndarray, sides: SideLayout, model: SideModel,
         (coef, cov, fit_blur), scaled = fit_in_light(   # (no light field of clipped light)
             partial(fit_step_model, samples=samples, tol_px=_FIT_TOL_PX, iterations=_FIT_STEPS,
                     censor_at=settings.censor_at), values, basis[:, 1], sid, first, contrast,
-            a, u, model.length, (used >= 4) & (settings.censor_at is None))
+            a, u, model.length, (used >= 4) & (settings.censor_at is None) & settings.light_field)
         fit = partial(fit_step_model, scaled, samples, tol_px=_FIT_TOL_PX,
                       censor_at=settings.censor_at)
         if settings.censor_at is not None and rows:
