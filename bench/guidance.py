@@ -507,9 +507,11 @@ def merged(paths: list[Path]) -> dict[str, Any]:
                 continue
             have = out["cases"][label]  # the same case run in parts (--first): sessions joined
             for st in STRATEGIES:
-                have["sessions"][st] += case["sessions"][st]
+                seen = {x["seed"] for x in have["sessions"][st]}
+                new = [k for k, x in enumerate(case["sessions"][st]) if x["seed"] not in seen]
+                have["sessions"][st] += [case["sessions"][st][k] for k in new]
                 for name, _ in MEASURES:
-                    have["views"][st][name] += case["views"][st][name]
+                    have["views"][st][name] += [case["views"][st][name][k] for k in new]
             if not math.isfinite(have["next_pose_s_at_40"]):
                 have["next_pose_s_at_40"] = case["next_pose_s_at_40"]
     # a run stopped early holds fewer sessions than asked for: say the fewest
