@@ -151,7 +151,7 @@ def test_dim_defocused_jpeg_frame_keeps_gamma_22() -> None:
         tone = det.tone
         assert tone.fitted is not None
         if gamma == 2.2:
-            assert tone.fitted.gamma < 1.7          # the biased best fit ...
+            assert tone.fitted.gamma < 2.0          # the biased best fit ...
             assert tone.curve == ToneCurve("power", 2.2)  # ... is not taken
         else:
             assert tone.curve.gamma < 1.3
