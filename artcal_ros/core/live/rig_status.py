@@ -159,15 +159,7 @@ class RigStatus:
         """The rig collection's readiness judged by every camera's live solve."""
         bound = self._max_uncertainty
         n_views = len(snap.views)
-        missing = []
-        if n_views < snap.min_views:
-            missing.append(f"{snap.min_views - n_views} more rig views (the board seen by two "
-                           "or more cameras at once)")
-        unseen = [n for n in snap.names if n not in snap.image_sizes]
-        if unseen:
-            missing.append(f"no image yet from {', '.join(unseen)}")
-        if snap.problem:
-            missing.append(snap.problem)
+        missing = snap.missing()
         cameras = {}
         for n, status in self.cameras.items():
             views = len(camera_views(snap, n))

@@ -111,10 +111,8 @@ class RigSnapshot:
         """camera -> one entry per kept rig view (the input of ``calibrate_rig``)."""
         return {n: [v.detections.get(n) for v in self.views] for n in self.names}
 
-    def summary(self) -> str:
-        """One line: rig views, shared views per pair, what is missing."""
-        pairs = ", ".join(f"{a}-{b} {n}" for (a, b), n in self.shared.items())
-        text = f"rig views {len(self.views)}/{self.min_views} (shared views {pairs})"
+    def missing(self) -> list[str]:
+        """What the collection lacks before a solve, in words (empty: nothing)."""
         missing = []
         if len(self.views) < self.min_views:
             missing.append(f"{self.min_views - len(self.views)} more rig views (the board "
@@ -124,6 +122,13 @@ class RigSnapshot:
             missing.append(f"no image yet from {', '.join(unseen)}")
         if self.problem:
             missing.append(self.problem)
+        return missing
+
+    def summary(self) -> str:
+        """One line: rig views, shared views per pair, what is missing."""
+        pairs = ", ".join(f"{a}-{b} {n}" for (a, b), n in self.shared.items())
+        text = f"rig views {len(self.views)}/{self.min_views} (shared views {pairs})"
+        missing = self.missing()
         return text + ("; ready" if not missing else "; missing: " + "; ".join(missing))
 
 
