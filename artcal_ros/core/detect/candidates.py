@@ -24,7 +24,7 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect.decode import PatternTable, decode_quads
 from artcal_ros.core.detect.edges import refine_quads, same_edges
-from artcal_ros.core.detect.exposure import is_clipped, saturation_image
+from artcal_ros.core.detect.exposure import saturation_image
 from artcal_ros.core.detect.sampling import border_is_dark
 from artcal_ros.core.homography import shortest_sides
 
@@ -93,19 +93,21 @@ class CandidateFinder:
         self.clipped_patterns = PatternTable(board, any_polarity=board.polarity == "any",
                                               clipped=True)
 
-    def find(self, gray8: np.ndarray, lin: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    def find(self, gray8: np.ndarray, lin: np.ndarray, *, clipped: bool
+             ) -> tuple[np.ndarray, np.ndarray]:
         """Quads (N, 4, 2) in board corner order and ids (N,) that belong to the board.
 
         Args:
             gray8: (H, W) uint8 image for the quad finder.
             lin: (H, W) float32 linear intensity of the same image.
+            clipped: the frame is over-exposed (:func:`~.exposure.is_clipped`).
         """
         self.near_misses = np.zeros((0, 4, 2))
         self.full_searched = True
         # not for mixed boards, whose narrow quiet zones blur shut at half resolution, nor
         # for clipped frames, whose saturation mask loses the thin borders there
         if (0 < self.half_above_px <= min(gray8.shape[:2])
-                and self.board.polarity in ("black", "white") and not is_clipped(gray8)):
+                and self.board.polarity in ("black", "white") and not clipped):
             quads, ids = self._search(half_image(gray8), lin, half=True)
             modules = shortest_sides(quads) / (2 * (self.board.bits + 2))
             self.full_searched = bool(len(ids) and np.median(modules) < _HALF_MIN_MODULE_PX)

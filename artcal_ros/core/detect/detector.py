@@ -318,12 +318,13 @@ class Detector:
         if self._candidates is None:     # a chessboard or a circle grid: points only
             return self._detect_points(frame, camera, source)
         # 1. candidates: quads and ids of the board's markers
-        quads, ids = self._candidates.find(frame.gray8, frame.lin)
+        clipped = is_clipped(frame.gray8)
+        quads, ids = self._candidates.find(frame.gray8, frame.lin, clipped=clipped)
         if len(ids) == 0:
             return replace(Detections.empty(frame.size, source), sharpness=frame.sharpness)
         quads, ids, dark = self._of_polarity(frame.lin, quads, ids)
         # 2. exposure
-        exposure = self._exposure(frame, quads)
+        exposure = self._exposure(frame, quads, clipped)
         # 3. edges: sub-pixel corners (and the frame's tone curve and lens)
         edges = _Edges(frame, _Markers(ids, np.asarray(quads, dtype=np.float64),
                                        np.full((len(ids), 4), np.nan)), dark,
@@ -375,9 +376,8 @@ class Detector:
             quads, ids, dark = quads[keep], ids[keep], dark[keep]
         return quads, ids, dark
 
-    def _exposure(self, frame: _Frame, quads: np.ndarray) -> _Exposure:
-        """Whether the frame clips, how dark its ink reads, and whether the fit censors."""
-        clipped = is_clipped(frame.gray8)
+    def _exposure(self, frame: _Frame, quads: np.ndarray, clipped: bool) -> _Exposure:
+        """How dark the ink of a frame (``clipped`` or not) reads, and whether the fit censors."""
         # censoring saturated samples keeps a clipped edge's fit consistent while its
         # transition shows; once the ink nears saturation the clipped plateau's edge is
         # steadier. A frame clipped in part is censored too (only its saturated sides)
