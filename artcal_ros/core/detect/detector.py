@@ -347,7 +347,7 @@ class Detector:
         """The image as the stages read it, through the configured or pooled tone curve."""
         gray = to_gray(image)
         gray8 = to_gray8(gray)
-        sharpness = float(cv2.Laplacian(gray8, cv2.CV_32F).var())
+        sharpness = float(cv2.meanStdDev(cv2.Laplacian(gray8, cv2.CV_16S))[1][0, 0] ** 2)
         gamma = self._fixed_gamma(gray.dtype)
         probing = gamma == 0 and not self._tone_pool.settled
         curve = ToneCurve("power", gamma) if gamma > 0 else self._tone_pool.estimate().curve
