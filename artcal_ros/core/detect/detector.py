@@ -29,7 +29,6 @@ from collections.abc import Mapping
 from dataclasses import dataclass, replace
 from typing import Any, NamedTuple
 
-import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
@@ -43,7 +42,7 @@ from artcal_ros.core.detect.edge_shift import remove_view_shift
 from artcal_ros.core.detect.edges import EdgeFit, refine_quads, same_edges
 from artcal_ros.core.detect.exposure import censor_level, dark_level, is_clipped, saturates
 from artcal_ros.core.detect.grid_search import grow
-from artcal_ros.core.detect.image import to_gray, to_gray8
+from artcal_ros.core.detect.image import sharpness, to_gray, to_gray8
 from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool, LensPoolState, known_lens
 from artcal_ros.core.detect.patterns import inner_border_cells, outer_neighbours
 from artcal_ros.core.detect.rim import read_through_lens
@@ -347,11 +346,10 @@ class Detector:
         """The image as the stages read it, through the configured or pooled tone curve."""
         gray = to_gray(image)
         gray8 = to_gray8(gray)
-        sharpness = float(cv2.meanStdDev(cv2.Laplacian(gray8, cv2.CV_16S))[1][0, 0] ** 2)
         gamma = self._fixed_gamma(gray.dtype)
         probing = gamma == 0 and not self._tone_pool.settled
         curve = ToneCurve("power", gamma) if gamma > 0 else self._tone_pool.estimate().curve
-        return _Frame(gray, gray8, curve.linearise(gray), curve, probing, sharpness)
+        return _Frame(gray, gray8, curve.linearise(gray), curve, probing, sharpness(gray8))
 
     def _detect_points(self, frame: _Frame, camera: CameraModel | HasCamera | None,
                        source: str) -> Detections:
