@@ -33,9 +33,9 @@ test/unit/test_layout.py checks both::
     1  detector
     2  candidates   grid_search   rim   chessboard   charuco   circles
     3  decode   edges   exposure   verify   circle_grid
-    4  plumb    centers
+    4  plumb    centers   profiles
     5  sides    light
-    6  step_model   saddle   lens   image   patterns   profiles   tone   edge_shift
+    6  step_model   saddle   lens   image   patterns   tone   edge_shift
     7  sampling   linalg   workers
 """
 

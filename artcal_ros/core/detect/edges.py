@@ -28,7 +28,7 @@ from artcal_ros.core.detect.lens import Lens, LensPool
 from artcal_ros.core.detect.light import fit_in_light
 from artcal_ros.core.detect.linalg import nanmedian_rows
 from artcal_ros.core.detect.plumb import estimate_division, lens_bend
-from artcal_ros.core.detect.profiles import coarse_offsets, gather_samples
+from artcal_ros.core.detect.profiles import coarse_offsets, gather_samples, sample_geometry
 from artcal_ros.core.detect.sides import (
     SideModel,
     far_cells,
@@ -358,9 +358,9 @@ def _model_passes(lin: np.ndarray, sides: SideLayout, model: SideModel,
         read, basis, sid, used = gather_samples(
             lin, a, u, n, t, present, model.coef, model.length, model.order >= 3, span, inner,
             outer, neighbour_lines(corners), settings.margin_px)
-        px_c, py_c, _, s_c, values, rel = read
+        px_c, py_c, t_c, s_c, values, _ = read
         pts_c = np.stack([px_c, py_c], axis=-1)    # (the border's width places the code)
-        along, m_s = module_geometry_at(corners, pts_c, sid, n, bits, lens, offset=rel)
+        along, m_s = sample_geometry(corners, pts_c, t_c, sid, sides, base, m_px, bits, lens)
         # (a mixed board's known edge beyond the quiet zone: better by the sample's width)
         quiet_m = m_s if known is None else module_geometry_at(corners, pts_c, sid, n,
                                                                bits, lens)[1]

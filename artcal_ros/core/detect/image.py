@@ -80,4 +80,5 @@ def sharpness(gray8: np.ndarray) -> float:
     # an integer Laplacian, its sums in double: a fraction of a float image's .var() time
     lap = cv2.Laplacian(gray8, cv2.CV_16S)
     n = max(lap.size, 1)
-    return float(cv2.norm(lap, cv2.NORM_L2SQR) / n - (cv2.sumElems(lap)[0] / n) ** 2)
+    total = float(np.asarray(cv2.sumElems(lap), dtype=np.float64)[0])
+    return float(cv2.norm(lap, cv2.NORM_L2SQR) / n - (total / n) ** 2)

@@ -5,7 +5,9 @@ Two reads serve the edge refinement (:mod:`artcal_ros.core.detect.edges`):
 * :func:`coarse_offsets`: bilinear profiles across each side and the offset of
   the strongest gradient of the expected sign on each (a first line per side);
 * :func:`gather_samples`: the raw pixels of a band across each side that the
-  blurred-step model is fitted to (:mod:`artcal_ros.core.detect.step_model`).
+  blurred-step model is fitted to (:mod:`artcal_ros.core.detect.step_model`);
+* :func:`sample_geometry`: where those samples lie on the marker's module grid, and the
+  module width the model places the code behind the border with.
 
 Both loop over sides and profiles in compiled code, which never builds the (S, K, J)
 arrays of every candidate point that array code would mask most of again. A point on
@@ -15,14 +17,18 @@ side k is ``a + t u + s n`` as in :mod:`.sides`.
 from __future__ import annotations
 
 import math
+from typing import Protocol
 
 import numpy as np
 from numba import njit
 
+from artcal_ros.core.detect.lens import Lens
 from artcal_ros.core.detect.sampling import bilinear_at
+from artcal_ros.core.detect.sides import module_geometry_at
 from artcal_ros.core.detect.workers import run_all, split_even
+from artcal_ros.core.homography import apply_one, module_homographies
 
-__all__ = ["coarse_offsets", "gather_samples"]
+__all__ = ["coarse_offsets", "gather_samples", "sample_geometry"]
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
@@ -228,3 +234,100 @@ def gather_samples(lin: np.ndarray, a: np.ndarray, u: np.ndarray, n: np.ndarray,
     basis = np.empty((start[-1], 3))
     run_all(lambda r: _gather_kernel(r, start, *args, count, used, out, basis, True), runs)
     return out, basis, np.repeat(np.arange(S), count), used
+
+
+class ProfileLayout(Protocol):
+    """Where the profiles of S sides lie (:class:`~artcal_ros.core.detect.edges.SideLayout`):
+    positions t (S, K) along each side, pixels, evenly spaced; present (S, K) bool, the
+    first ones of each side; n (S, 2) outward unit normals."""
+
+    @property
+    def t(self) -> np.ndarray: ...
+
+    @property
+    def present(self) -> np.ndarray: ...
+
+    @property
+    def n(self) -> np.ndarray: ...
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def _sample_kernel(Hinv: np.ndarray, side: np.ndarray, pts: np.ndarray, t_pts: np.ndarray,
+                   t: np.ndarray, count: np.ndarray, width: np.ndarray, size: float,
+                   along: np.ndarray, out: np.ndarray) -> None:
+    """Along-side position (modules, in side direction) of points (N, 2) (undistorted) on
+    sides (N,), and the profiles' widths (S, K) interpolated at their positions t_pts (N,)."""
+    for i in range(len(pts)):
+        s = side[i]
+        m, k = s // 4, s % 4
+        x, y = apply_one(Hinv[m], pts[i, 0], pts[i, 1])
+        a = x if k % 2 == 0 else y
+        along[i] = size - a if k >= 2 else a
+        c = count[s]
+        f = (t_pts[i] - t[s, 0]) / (t[s, 1] - t[s, 0]) if c > 1 else 0.0
+        if f <= 0.0:
+            out[i] = width[s, 0]
+        elif f >= c - 1:
+            out[i] = width[s, c - 1]
+        else:
+            j = int(f)
+            r = f - j
+            out[i] = (1.0 - r) * width[s, j] + r * width[s, j + 1]
+
+
+def sample_geometry(corners: np.ndarray, pts: np.ndarray, t_pts: np.ndarray,
+                    side: np.ndarray, layout: ProfileLayout, base: np.ndarray,
+                    plain_width: np.ndarray, bits: int, lens: Lens | None
+                    ) -> tuple[np.ndarray, np.ndarray]:
+    """Along-side position (modules, 0..bits+2) of samples and module width (pixels) at them.
+
+    The width is the border's, from the edge point one module inward
+    (:func:`~artcal_ros.core.detect.sides.module_geometry_at`), taken at each profile's point
+    on the edge and interpolated along the side to the samples. The width varies slowly
+    along a side and a sample's edge point lies within a pixel of its profile's, while
+    through a lens every width costs a root-finding (the lens's inverse).
+
+    Args:
+        corners: (M, 4, 2) current quads, pixels.
+        pts: (N, 2) the samples' pixels; t_pts (N,) their positions along their sides,
+            pixels; side (N,) int, their sides (0 .. 4 M - 1).
+        layout: where the profiles lie.
+        base: (S, K, 2) each profile's point on the current edge, pixels.
+        plain_width: (S, K) the module width at ``base`` without a lens, pixels (used when
+            ``lens`` is None).
+        bits: code cells per marker side.
+        lens: optional lens model (the marker's homography is then taken between
+            undistorted pixels).
+
+    Returns:
+        along (N,) modules and module width (N,) pixels.
+    """
+    S, K = layout.t.shape
+    n = np.ascontiguousarray(layout.n, np.float64)
+    width = plain_width
+    if lens is not None:
+        width = module_geometry_at(corners, base.reshape(-1, 2), np.repeat(np.arange(S), K),
+                                   n, bits, lens)[1].reshape(S, K)
+    M = len(corners)
+    H = module_homographies(
+        corners if lens is None
+        else lens.undistort(corners.reshape(-1, 2)).reshape(M, 4, 2), bits)
+    Hinv = np.linalg.inv(H)
+    pts = np.ascontiguousarray(pts, dtype=np.float64)
+    pts_u = pts if lens is None else lens.undistort(pts)
+    t_pts = np.ascontiguousarray(t_pts, np.float64)
+    t = np.ascontiguousarray(layout.t, np.float64)
+    count = np.sum(layout.present, axis=1).astype(np.intp)
+    width = np.ascontiguousarray(width, np.float64)
+    side = np.ascontiguousarray(side, dtype=np.intp)
+    along = np.empty(len(pts))
+    out = np.empty(len(pts))
+
+    def part(run: np.ndarray) -> None:
+        sl = slice(int(run[0]), int(run[-1]) + 1)
+        _sample_kernel(Hinv, side[sl], pts_u[sl], t_pts[sl], t, count, width, bits + 2.0,
+                       along[sl], out[sl])
+
+    if len(pts):
+        run_all(part, split_even(np.arange(len(pts)), np.ones(len(pts))))
+    return along, out
