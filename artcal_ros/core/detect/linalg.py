@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["nanmedian_rows", "solve", "sort_small"]
+__all__ = ["median_small", "nanmedian_rows", "solve", "sort_small"]
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
@@ -64,6 +64,58 @@ def sort_small(x: np.ndarray, n: int) -> None:
                 j -= gap
             x[j] = v
         gap //= 3
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def _select(x: np.ndarray, n: int, k: int) -> float:
+    """The k-th smallest of the first n entries of x (no NaN), which are reordered so that
+    none before index k is larger and none after it smaller (Hoare's selection)."""
+    lo, hi = 0, n - 1
+    while lo < hi:
+        mid = (lo + hi) // 2
+        # the median of three as the pivot
+        if x[mid] < x[lo]:
+            x[mid], x[lo] = x[lo], x[mid]
+        if x[hi] < x[lo]:
+            x[hi], x[lo] = x[lo], x[hi]
+        if x[hi] < x[mid]:
+            x[hi], x[mid] = x[mid], x[hi]
+        pivot = x[mid]
+        i, j = lo, hi
+        while i <= j:
+            while x[i] < pivot:
+                i += 1
+            while x[j] > pivot:
+                j -= 1
+            if i <= j:
+                x[i], x[j] = x[j], x[i]
+                i += 1
+                j -= 1
+        # x[lo..j] <= pivot <= x[i..hi], and what lies between equals the pivot
+        if k <= j:
+            hi = j
+        elif k >= i:
+            lo = i
+        else:
+            break
+    return float(x[k])
+
+
+@njit(cache=True, error_model="numpy", nogil=True)
+def median_small(x: np.ndarray, n: int) -> float:
+    """Median of the first n (> 0) entries of a 1-D array without NaN, the mean of the two
+    middle values for an even n (as sorting would give); reorders those entries.
+
+    A selection, not a sort: linear in n where :func:`sort_small` is not.
+    """
+    k = (n - 1) // 2
+    a = _select(x, n, k)
+    b = a
+    if n % 2 == 0:
+        b = x[k + 1]
+        for i in range(k + 2, n):
+            b = min(b, x[i])
+    return 0.5 * (a + b)
 
 
 def nanmedian_rows(x: np.ndarray) -> np.ndarray:

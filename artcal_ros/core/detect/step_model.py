@@ -30,7 +30,7 @@ from dataclasses import dataclass
 import numpy as np
 from numba import njit
 
-from artcal_ros.core.detect.linalg import solve, sort_small
+from artcal_ros.core.detect.linalg import median_small, solve
 from artcal_ros.core.detect.workers import run_all, split_even
 
 # A&S 7.1.26 coefficients of erfc (absolute error < 1.5e-7)
@@ -127,8 +127,7 @@ def _median_of(values: np.ndarray, s: np.ndarray, basis: np.ndarray, c: np.ndarr
             m += 1
     if m == 0:
         return np.nan
-    sort_small(buf, m)
-    return 0.5 * (buf[(m - 1) // 2] + buf[m // 2])
+    return median_small(buf, m)
 
 
 @njit(cache=True, error_model="numpy")
