@@ -5,7 +5,8 @@ The pipeline (:mod:`~artcal_ros.core.detect.detector`) runs the stages front to
 back: ``image`` (8-bit grey for the quad finder, linear light for everything
 else) -> ``candidates`` (OpenCV's quads and ids, and ``decode`` of the quads it
 rejected) -> ``edges`` (blurred-step edge fit, ``step_model``, with the lens
-given or estimated by ``plumb``; side geometry in ``sides``; the pixels across
+given or estimated by ``plumb``, how far its bend is trusted in ``bends``; side
+geometry in ``sides``; the pixels across
 the sides read by ``profiles``; ``light`` the light's slope along each side, from the
 frame's light field) -> ``verify`` -> ``centers``. All of them read
 pixels through ``sampling``; ``patterns`` holds what the board prints, ``lens``
@@ -33,7 +34,7 @@ test/unit/test_layout.py checks both::
     1  detector
     2  candidates   grid_search   rim   chessboard   charuco   circles
     3  decode   edges   exposure   verify   circle_grid
-    4  plumb    centers   profiles
+    4  plumb    centers   profiles   bends
     5  sides    light
     6  step_model   saddle   lens   image   patterns   tone   edge_shift
     7  sampling   linalg   workers

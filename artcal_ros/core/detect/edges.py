@@ -24,6 +24,7 @@ from typing import Any
 
 import numpy as np
 
+from artcal_ros.core.detect.bends import drop_flat_parabolas
 from artcal_ros.core.detect.lens import Lens, LensPool
 from artcal_ros.core.detect.light import fit_in_light
 from artcal_ros.core.detect.linalg import nanmedian_rows
@@ -223,7 +224,7 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         _model_passes(lin, sides, model, settings, cells, passes=1, fit_order=np.full(S, 2),
                       lens=used_lens, start_blur=fit_blur, tone_probe=tone_probe)
     else:
-        _drop_flat_parabolas(model)
+        drop_flat_parabolas(model)
         if later and outer_same is not None:
             _model_passes(lin, sides, model, settings, cells, passes=1,
                           fit_order=model.order, start_blur=fit_blur, tone_probe=tone_probe)
@@ -282,20 +283,6 @@ def _coarse_lines(lin: np.ndarray, quads: np.ndarray, sign: np.ndarray, lo: np.n
     s_edge, valid = coarse_offsets(lin, a, u, n, tc, offsets, sign, lo, hi)
     model.fit(tc, s_edge, valid & pc, min_sigma_px=0.05, reject_sigmas=3.0)
     return model, SideLayout(quads, a, u, n, t, present)
-
-
-def _drop_flat_parabolas(model: SideModel) -> None:
-    """Keep a parabola only where its curvature is significant (3 sigma); updates ``model``."""
-    curved = model.order >= 3
-    if not curved.any():
-        return
-    sd = np.sqrt(np.maximum(model.cov[:, 2, 2], 1e-30))
-    keep = curved & (np.abs(model.coef[:, 2]) > 3.0 * sd)
-    if (curved & ~keep).any():
-        model.order = np.where(keep, 3, 2)
-        model.coef[~keep, 2] = 0.0
-        model.cov[~keep, 2, :] = 0.0
-        model.cov[~keep, :, 2] = 0.0
 
 
 def _model_passes(lin: np.ndarray, sides: SideLayout, model: SideModel,
