@@ -33,6 +33,9 @@ def test_quick_run_tables_and_plots(tmp_path: Path, capsys: pytest.CaptureFixtur
         if r["method"].startswith("ours") and r["board"] == "marker_grid":
             # our marker grid is found in these views and always gives a calibration
             assert all(math.isfinite(r[c]) for c in ("std", "max", "proj RMS", "proj max"))
+    # one pose set: its rows are the table's
+    assert [(r["camera"], r["method"]) for r in results["table2 per seed"]] == [
+        (r["camera"], r["method"]) for r in rows]
     # a markdown row per method and camera
     assert printed.count("| ours corners | marker_grid |") == len(plan.table2_cameras)
 
