@@ -114,10 +114,12 @@ def test_lens_pool_restore_withdraws_a_frames_evidence() -> None:
     first, second = random_poses(board, cam, 2, rng, partial_fraction=0.0)
     pooled_lens(*first)
     state = pool.snapshot()
-    info = pool.info.copy()
+    info, bends = pool.info.copy(), pool.bend_evidence.copy()
     lens = pooled_lens(*second)
     assert not np.array_equal(pool.info, info)          # the second frame joined the pool
+    assert not np.array_equal(pool.bend_evidence, bends)
     np.testing.assert_array_equal(state.info, info)     # and the snapshot kept its moment
     pool.restore(state)
     np.testing.assert_array_equal(pool.info, info)
+    np.testing.assert_array_equal(pool.bend_evidence, bends)
     assert pooled_lens(*second) == lens

@@ -24,7 +24,7 @@ from typing import Any
 
 import numpy as np
 
-from artcal_ros.core.detect.bends import drop_flat_parabolas
+from artcal_ros.core.detect.bends import drop_flat_parabolas, trusted_bends
 from artcal_ros.core.detect.lens import Lens, LensPool
 from artcal_ros.core.detect.light import fit_in_light
 from artcal_ros.core.detect.linalg import nanmedian_rows
@@ -219,10 +219,14 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
         used_lens = estimate_division(model, quads, sides.t, sides.present, lin.shape,
                                       pool=lens_pool)
     if used_lens is not None:
-        model.order = np.full(S, 3)
-        model.coef[:, 2] = lens_bend(used_lens, sides.a, sides.u, sides.n, model.length)
+        # (held where the lens is trusted; far out, mixed with the side's own parabola)
+        used_lens, bend, bend_var = trusted_bends(
+            lens_bend(used_lens, sides.a, sides.u, sides.n, model.length), used_lens, sides.a,
+            sides.u, model.length, lin.shape, model if later else None, lens_pool)
+        model.order, model.coef[:, 2] = np.full(S, 3), bend
         _model_passes(lin, sides, model, settings, cells, passes=1, fit_order=np.full(S, 2),
                       lens=used_lens, start_blur=fit_blur, tone_probe=tone_probe)
+        model.cov[:, 2, 2] = bend_var  # the corners' sigmas carry the bend's
     else:
         drop_flat_parabolas(model)
         if later and outer_same is not None:

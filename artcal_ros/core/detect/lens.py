@@ -34,6 +34,9 @@ class DivisionLens:
         lam2: r^4 coefficient.
         lam3: r^6 coefficient.
         significance: |lam| over its standard deviation when estimated.
+        bend_misfit: per band of :data:`BEND_BANDS`, the variance of the curvature of a
+            straight edge's image that the model misses there, px^-2, as the sides' own
+            curvature shows it (:mod:`.bends`; empty: none known).
     """
 
     lam: float
@@ -42,6 +45,7 @@ class DivisionLens:
     lam2: float = 0.0
     lam3: float = 0.0
     significance: float = float("inf")
+    bend_misfit: tuple[float, ...] = ()
 
     def undistort(self, pts_px: np.ndarray) -> np.ndarray:
         """(N, 2) image pixels -> (N, 2) straightened pixels."""
@@ -200,6 +204,11 @@ def _division_distort(pts: np.ndarray, center: np.ndarray, scale: float, lam: fl
     return out
 
 
+# bands of distance from the image centre (lower edges, in half diagonals) in which a
+# division lens's bends are checked against the sides' own curvature (:mod:`.bends`)
+BEND_BANDS = (0.0, 0.5, 0.65, 0.75, 0.85, 0.9, 0.95)
+
+
 # A lens detection can map through: a known camera (the one CameraModel of the package, e.g.
 # a previous calibration) or the division model estimated from the image itself. Both offer
 # ``undistort`` and ``distort`` in pixels.
@@ -234,29 +243,36 @@ class LensPool:
     Attributes:
         info: (3, 3) summed information about (lam, lam2, lam3).
         info_theta: (3,) summed information-weighted estimates.
+        bend_evidence: (5, len(BEND_BANDS)) the sides' curvature against the lens's bends,
+            summed per band (:func:`~artcal_ros.core.detect.bends.trusted_bends`).
         shape: (height, width) of the images pooled so far.
     """
 
     def __init__(self) -> None:
         self.info = np.zeros((3, 3))
         self.info_theta = np.zeros(3)
+        self.bend_evidence = np.zeros((5, len(BEND_BANDS)))
         self.shape: tuple[int, ...] = ()
 
     def reset(self, shape: tuple[int, ...] = ()) -> None:
         """Forget everything (and remember the new image size)."""
         self.info = np.zeros((3, 3))
         self.info_theta = np.zeros(3)
+        self.bend_evidence = np.zeros((5, len(BEND_BANDS)))
         self.shape = shape
 
     def snapshot(self) -> LensPoolState:
         """The pooled evidence as it stands, for :meth:`restore`."""
-        return LensPoolState(self.info.copy(), self.info_theta.copy(), self.shape)
+        return LensPoolState(self.info.copy(), self.info_theta.copy(), self.shape,
+                             self.bend_evidence.copy())
 
     def restore(self, state: LensPoolState) -> None:
         """Go back to a :meth:`snapshot` (a frame's evidence withdrawn to be fitted again)."""
         self.info = state.info.copy()
         self.info_theta = state.info_theta.copy()
         self.shape = state.shape
+        self.bend_evidence = (np.zeros((5, len(BEND_BANDS))) if state.bend_evidence is None
+                              else state.bend_evidence.copy())
 
 
 @dataclass(frozen=True)
@@ -266,3 +282,4 @@ class LensPoolState:
     info: np.ndarray
     info_theta: np.ndarray
     shape: tuple[int, ...]
+    bend_evidence: np.ndarray | None = None
