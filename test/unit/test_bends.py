@@ -106,3 +106,22 @@ def test_sides_without_a_parabola_take_the_lens_misfit_as_their_variance() -> No
     expected = np.asarray(lens.bend_misfit)[band] * (length**2 / 8) ** 2
     np.testing.assert_allclose(var, expected)
     assert expected[300:].all() and not expected[:300].any()
+
+
+def test_a_few_sides_judge_nothing() -> None:
+    """One small frame (100 sides inside half the diagonal, their parabolas scattering at
+    half their sigmas) leaves the lens trusted: its scatter is no reference yet."""
+    rng = np.random.default_rng(5)
+    a, u, length, bend, free, true = _frame(rng, 4e-4)
+    keep = np.r_[np.arange(100), np.arange(300, 340)]
+    free = SideModel(length[keep], free.order[keep])
+    # the outer parabolas show the lens's miss (true, not the lens's bend)
+    free.coef[:, 2] = true[keep] + rng.normal(0.0, 0.5, len(keep)) * 0.04
+    free.cov[:, 2, 2] = 0.04**2
+    free.count[:] = 40
+    lens, held, var = trusted_bends(bend[keep], LENS, a[keep], u[keep], length[keep], SHAPE,
+                                    free, None)
+    assert isinstance(lens, DivisionLens)
+    assert max(lens.bend_misfit) == 0.0
+    np.testing.assert_array_equal(held, bend[keep])
+    assert not var.any()

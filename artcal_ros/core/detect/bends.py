@@ -31,7 +31,7 @@ __all__ = ["band_misfit", "drop_flat_parabolas", "trusted_bends"]
 _OBS_FLOOR_PX = 0.01
 # sides of the inner band (radius below BEND_BANDS[1]) needed before any band is judged:
 # they say how far the free parabolas scatter where the lens fits
-_MIN_REFERENCE = 10
+_MIN_REFERENCE = 200
 # sides a band needs before its own misfit counts (fewer: the band inward's)
 _MIN_SIDES = 5
 # a band's misfit counts beyond this many standard errors, and is shrunk by as many
@@ -67,13 +67,14 @@ def band_misfit(evidence: np.ndarray) -> tuple[np.ndarray, float]:
     Returns:
         misfit (B,) px^-2, the variance of a straight edge's curvature the lens misses,
         never less than the band inward's; and f0, the inner band's mean z^2 (how far its
-        parabolas' variances understate their scatter; NaN, and no misfit, until it has
+        parabolas' variances understate their scatter, at least 1: where they scatter less
+        the excess is judged against their own variances; NaN, and no misfit, until it has
         ``_MIN_REFERENCE`` sides).
     """
     n, z2, a, b, c = evidence
     if n[0] < _MIN_REFERENCE:
         return np.zeros(len(n)), float("nan")
-    f0 = float(z2[0] / n[0])
+    f0 = max(float(z2[0] / n[0]), 1.0)
     c = np.maximum(c, 1e-300)
     # moment estimate weighted by 1 / u^2: sum (q^2 - f0 u) / u^2 / sum 1 / u^2, with
     # q^2 = z^2 u the squared curvature residual; its standard error where the lens fits
