@@ -153,7 +153,9 @@ def _circles(gray: np.ndarray, board: Board) -> Found:
 
 def _charuco(shift: float) -> Callable[[np.ndarray, Board], Found]:
     def find(gray: np.ndarray, board: Board) -> Found:
-        corners, ids, _, _ = cv2.aruco.CharucoDetector(board.to_cv_board()).detectBoard(gray)
+        cv_board = board.to_cv_board()  # a CharucoBoard for a ChArUco board
+        corners, ids, _, _ = cv2.aruco.CharucoDetector(
+            cv_board).detectBoard(gray)  # type: ignore[arg-type]
         if ids is None or len(ids) < MIN_POINTS:
             return None
         return board.object_points(ids.ravel()), corners.reshape(-1, 2) - shift
@@ -188,10 +190,12 @@ def opencv_calibrate(found: list[tuple[np.ndarray, np.ndarray]], cam: Camera) ->
     img = [i.reshape(-1, 1, 2).astype(obj[0].dtype) for _, i in found]
     if cam.model == "equidistant":
         F = cv2.fisheye
-        _, K, D, _, _ = F.calibrate(obj, img, cam.size, None, None,
-                                    flags=F.CALIB_RECOMPUTE_EXTRINSIC | F.CALIB_FIX_SKEW)
+        _, K, D, _, _ = F.calibrate(  # type: ignore[call-overload]
+            obj, img, cam.size, None, None,
+            flags=F.CALIB_RECOMPUTE_EXTRINSIC | F.CALIB_FIX_SKEW)
     else:
-        _, K, D, _, _ = cv2.calibrateCamera(obj, img, cam.size, None, None)
+        _, K, D, _, _ = cv2.calibrateCamera(  # type: ignore[call-overload]
+            obj, img, cam.size, None, None)
     return Camera(cam.model, K, np.asarray(D).ravel()[:len(cam.dist)], cam.size)
 
 
@@ -284,8 +288,7 @@ def pool_seeds(rows: list[dict[str, Any]]) -> list[dict[str, Any]]:
         groups.setdefault((row["camera"], row["method"], row["board"]), []).append(row)
     pooled = []
     for (camera, method, board), same in groups.items():
-        row: dict[str, Any] = {"camera": camera, "method": method, "board": board,
-                               "seeds": len(same)}
+        row = {"camera": camera, "method": method, "board": board, "seeds": len(same)}
         for key in same[0]:
             values = [r[key] for r in same if isinstance(r.get(key), float)]
             if key in row or not values:
