@@ -271,8 +271,7 @@ class LensPool:
         self.info = state.info.copy()
         self.info_theta = state.info_theta.copy()
         self.shape = state.shape
-        self.bend_evidence = (np.zeros((5, len(BEND_BANDS))) if state.bend_evidence is None
-                              else state.bend_evidence.copy())
+        self.bend_evidence = state.bend_evidence.copy()
 
 
 @dataclass(frozen=True)
@@ -282,4 +281,4 @@ class LensPoolState:
     info: np.ndarray
     info_theta: np.ndarray
     shape: tuple[int, ...]
-    bend_evidence: np.ndarray | None = None
+    bend_evidence: np.ndarray
