@@ -37,7 +37,7 @@ test/unit/test_layout.py checks both::
     4  plumb    centers   profiles   bends
     5  sides    light
     6  step_model   saddle   lens   image   patterns   tone   edge_shift
-    7  sampling   linalg   workers
+    7  sampling   linalg   workers   config
 """
 
 from artcal_ros.core.detect.detector import Detector, DetectorConfig, detect
