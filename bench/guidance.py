@@ -6,17 +6,20 @@
     python -m bench.guidance --merge *.json                    # their tables together
     python -m bench.guidance --quick      # webcam, 2 sessions of 8 views (~30 s)
 
-Each session starts from the same 3 random views (poses and noise) for every strategy, then
-adds one view at a time up to ``--max-views``, re-solving after each (the bundle adjustment
+Each session starts from the same random view (``--start-views``: 1, or 3 as earlier runs
+did; poses and noise) for every strategy, then adds one view at a time up to
+``--max-views``, re-solving after each from the third view on (the bundle adjustment
 warm-started from the last solve, a new view's pose from the current camera) and measuring
 the true projection difference (:func:`projection_difference` against the preset's camera)
 and the solve's own projection uncertainty RMS. The board is the default one (19 x 9
 markers, 1.5 x 0.7 m) or one printed on A4 paper (7 x 5 markers of 30 mm). Three ways to
 choose the next view:
 
-- ``guided``: :func:`next_pose` from the current solve; a virtual user shows that pose with
-  human-sized errors: the board's centre off by a Gaussian 10 % of its distance along each
-  camera axis, the board turned by a Gaussian 10 degrees about a random axis.
+- ``guided``: :func:`next_pose` from the current solve (:func:`first_pose`, from a
+  provisional camera and the intrinsics' prior, before the first solve at 3 views); a
+  virtual user shows that pose with human-sized errors: the board's centre off by a
+  Gaussian 10 % of its distance along each camera axis, the board turned by a Gaussian
+  10 degrees about a random axis.
 - ``random``: random holdable poses (:func:`holdable_pose`: anywhere over the image, board
   filling 20-80 % of it, tilted 0-50 degrees in any direction, rolled up to 15 degrees).
 - ``bars``: the board waved smoothly from one random holdable pose to the next (10 frames
@@ -72,6 +75,7 @@ from artcal_ros.core.calibrate.solve import (
 )
 from artcal_ros.core.errors import CalibrationError
 from artcal_ros.core.live.guidance import holdable_pose, next_pose
+from artcal_ros.core.live.guidance_start import first_pose
 from artcal_ros.synth import Camera
 from artcal_ros.synth.poses import ease_between
 
@@ -83,7 +87,8 @@ CASES = ("webcam", "hd", "wide", "webcam:a4", "hd:a4", "wide:a4")
 STRATEGIES = ("guided", "random", "bars")
 THRESHOLDS_PX = (0.1, 0.05)
 NOISE_PX = 0.04
-START_VIEWS = 3
+START_VIEWS = 1  # shared random views a session starts from (--start-views)
+SOLVE_VIEWS = 3  # a solve needs this many views (as the node's live solve)
 MIN_POINTS = 24  # 6 markers' corners
 POSITION_ERROR = 0.10  # of the board's distance, per camera axis (1 sigma)
 TILT_ERROR_DEG = 10.0  # 1 sigma, about a random axis
@@ -98,7 +103,7 @@ K_COEFFICIENTS = {"webcam": 2, "hd": 2, "wide": 3}
 @dataclass
 class Session:
     """One simulated session of one strategy: the true projection difference after each
-    view (index = views used - 1; the first START_VIEWS - 1 entries are NaN)."""
+    view (index = views used - 1; NaN before the first solve)."""
 
     preset: str
     strategy: str
@@ -247,10 +252,10 @@ def bars_parameters(board: Board, px: np.ndarray, ok: np.ndarray,
 
 
 def run_session(preset: str, strategy: str, seed: int, max_views: int, *,
-                board: Board = BOARD,
+                board: Board = BOARD, start_views: int = START_VIEWS,
                 timings: list[tuple[int, float]] | None = None) -> Session:
-    """One session of ``strategy``; the first START_VIEWS views are the same random views for
-    every strategy of the same seed."""
+    """One session of ``strategy``; the first ``start_views`` views are the same random
+    views for every strategy of the same seed."""
     # The start views (poses and noise) come from the seed alone, the rest from the strategy.
     start_rng = np.random.default_rng(seed)
     rng = np.random.default_rng([seed, STRATEGIES.index(strategy)])
@@ -261,29 +266,36 @@ def run_session(preset: str, strategy: str, seed: int, max_views: int, *,
     session = Session(preset, strategy, seed)
     views: list[ViewPoints] = []
     bars_db: list[np.ndarray] = []
-    while len(views) < START_VIEWS:
+    while len(views) < start_views:
         r, t = world.random_pose(start_rng)
         v = world.view(r, t, len(views))
         if v is not None:
             views.append(v)
             if strategy == "bars":
                 bars_db.append(bars_parameters(board, *world.inside(r, t), world.size))
-    session.frames_seen = START_VIEWS
+    session.frames_seen = start_views
     world.rng = rng
     sol: Solution | None = None
-    try:
-        sol, _ = solve(views, world.size, model, options=options)
-    except CalibrationError:
-        sol = None
-    session.difference_px = [math.nan] * (START_VIEWS - 1)
-    session.uncertainty_px = [math.nan] * (START_VIEWS - 1)
-    session.difference_px.append(_difference(world, sol))
-    session.uncertainty_px.append(_uncertainty(views, sol, world.size))
+    if len(views) >= SOLVE_VIEWS:
+        try:
+            sol, _ = solve(views, world.size, model, options=options)
+        except CalibrationError:
+            sol = None
+    session.difference_px = [math.nan] * (len(views) - 1)
+    session.uncertainty_px = [math.nan] * (len(views) - 1)
+    solved = len(views) >= SOLVE_VIEWS
+    session.difference_px.append(_difference(world, sol) if solved else math.nan)
+    session.uncertainty_px.append(_uncertainty(views, sol, world.size) if solved else math.nan)
     while len(views) < max_views:
-        new = _next_view(world, strategy, views, sol, rng, bars_db, session, timings)
+        new = _next_view(world, strategy, views, sol, rng, bars_db, session, timings,
+                         options)
         if new is None:
             break
         views.append(new)
+        if len(views) < SOLVE_VIEWS:
+            session.difference_px.append(math.nan)
+            session.uncertainty_px.append(math.nan)
+            continue
         sol = _resolve(views, sol, world.size, model, options, free)
         session.difference_px.append(_difference(world, sol))
         session.uncertainty_px.append(_uncertainty(views, sol, world.size))
@@ -292,11 +304,13 @@ def run_session(preset: str, strategy: str, seed: int, max_views: int, *,
 
 def _next_view(world: World, strategy: str, views: list[ViewPoints], sol: Solution | None,
                rng: np.random.Generator, bars_db: list[np.ndarray], session: Session,
-               timings: list[tuple[int, float]] | None) -> ViewPoints | None:
+               timings: list[tuple[int, float]] | None,
+               options: SolveOptions) -> ViewPoints | None:
     index = len(views)
-    if strategy == "guided" and sol is not None:
+    if strategy == "guided" and (sol is not None or len(views) < SOLVE_VIEWS):
         t0 = time.perf_counter()
-        suggestion = next_pose(views, sol, world.board, world.size)
+        suggestion = (next_pose(views, sol, world.board, world.size) if sol is not None
+                      else first_pose(views, world.board, world.size, options=options))
         if timings is not None:
             timings.append((len(views), time.perf_counter() - t0))
         if suggestion is not None:
@@ -397,15 +411,17 @@ MEASURES: tuple[tuple[str, Callable[[Session], int | None]], ...] = (
 def run(cases: tuple[str, ...], sessions: int, max_views: int, *,
         log: Callable[[str], None] = print,
         progress: Callable[[dict[str, Any]], None] | None = None,
-        first: int = 0) -> dict[str, Any]:
+        first: int = 0, start_views: int = START_VIEWS) -> dict[str, Any]:
     """Every session of every case and strategy; the rows of the tables.
 
     Args:
         cases: "preset" or "preset:board" (a name of BOARDS; default: the default board).
         progress: called with the result so far after every session's three strategies.
         first: the first session's number (its seed SEED + first).
+        start_views: the shared random views every session starts from.
     """
-    out: dict[str, Any] = {"cases": {}, "max_views": max_views, "sessions": sessions}
+    out: dict[str, Any] = {"cases": {}, "max_views": max_views, "sessions": sessions,
+                           "start_views": start_views}
     for case in cases:
         preset, _, board_name = case.partition(":")
         board = BOARDS[board_name or "default"]
@@ -416,7 +432,7 @@ def run(cases: tuple[str, ...], sessions: int, max_views: int, *,
             for strategy in STRATEGIES:
                 t0 = time.perf_counter()
                 s = run_session(preset, strategy, SEED + k, max_views, board=board,
-                                timings=timings)
+                                start_views=start_views, timings=timings)
                 per[strategy].append(s)
                 log(f"{label} session {k} {strategy}: views "
                     + ", ".join(f"{name} {fn(s)}" for name, fn in MEASURES)
@@ -499,7 +515,11 @@ def merged(paths: list[Path]) -> dict[str, Any]:
     runs = [json.loads(p.read_text()) for p in paths]
     if len({r["max_views"] for r in runs}) != 1:
         raise SystemExit("--merge: the runs differ in --max-views")
-    out: dict[str, Any] = {"cases": {}, "max_views": runs[0]["max_views"]}
+    starts = {r.get("start_views", 3) for r in runs}  # runs before --start-views started at 3
+    if len(starts) != 1:
+        raise SystemExit("--merge: the runs differ in --start-views")
+    out: dict[str, Any] = {"cases": {}, "max_views": runs[0]["max_views"],
+                           "start_views": starts.pop()}
     for r in runs:
         for label, case in r["cases"].items():
             if label not in out["cases"]:
@@ -529,6 +549,9 @@ def main(argv: list[str] | None = None) -> int:
     parser.add_argument("--max-views", type=int, default=40)
     parser.add_argument("--first", type=int, default=0,
                         help=f"number of the first session (seed {SEED} + this)")
+    parser.add_argument("--start-views", type=int, default=START_VIEWS,
+                        help="shared random views each session starts from (earlier runs "
+                        "started from 3)")
     parser.add_argument("--json", type=Path, help="write every session's figures here")
     parser.add_argument("--merge", type=Path, nargs="+", metavar="JSON",
                         help="print the tables of runs written by --json (e.g. one per case, "
@@ -547,9 +570,11 @@ def main(argv: list[str] | None = None) -> int:
         def save(partial: dict[str, Any]) -> None:
             if json_path is not None:
                 json_path.write_text(json.dumps(partial, indent=1))
-        result = run(cases, sessions, max_views, progress=save, first=args.first)
+        result = run(cases, sessions, max_views, progress=save, first=args.first,
+                     start_views=args.start_views)
     print(f"\nviews needed to reach a true projection difference, median of {sessions} "
-          f"sessions (at most {max_views} views; {START_VIEWS} shared random views first; "
+          f"sessions (at most {max_views} views; {result['start_views']} shared random "
+          f"views first, a solve from {SOLVE_VIEWS} views; "
           f"corner noise {NOISE_PX} px)\n")
     print(markdown(result))
     print("\nmedian true projection difference (px) after so many views\n")
