@@ -1,11 +1,12 @@
 """Where to hold the board next before the first full solve (fewer than 3 views).
 
 A solve needs three views, but the user needs guidance from the first one. From one or two
-views :func:`provisional_solution` makes a provisional camera: the focal length from the
-views' homographies (Zhang's constraints with square pixels and the principal point at the
-image centre, one unknown), no distortion, each view's pose from that camera; a view that
-cannot tell the focal length (facing the camera) leaves the nominal guess of
-:func:`~artcal_ros.core.live.view_geometry.guess_camera_matrix`. :func:`first_pose` ranks
+views :func:`provisional_solution` makes a provisional camera with square pixels and the
+principal point at the image centre: the focal length from the views' homographies
+(Zhang's constraints, one unknown), then it and the first radial term fitted to the
+views; views that cannot tell the focal length (facing the camera) leave the nominal
+guess of :func:`~artcal_ros.core.live.view_geometry.guess_camera_matrix` and no
+distortion. Each view's pose comes from that camera. :func:`first_pose` ranks
 the holdable poses with :func:`~artcal_ros.core.live.guidance.next_pose` by the
 uncertainty this camera would have after each: the views' information about the free
 intrinsics plus a prior (:data:`PRIOR_SD`, what is known of any camera before it is
@@ -23,7 +24,7 @@ import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.calibrate.lm import point_weights
+from artcal_ros.core.calibrate.lm import bundle_adjust, point_weights
 from artcal_ros.core.calibrate.model import (
     DIST_NAMES,
     TIED_FOCAL,
@@ -35,7 +36,11 @@ from artcal_ros.core.calibrate.model import (
     free_jacobian,
     free_parameters,
     project_jacobian,
+    radial_names,
 )
+from artcal_ros.core.calibrate.quality import intrinsic_covariance
+from artcal_ros.core.calibrate.solve import residuals
+from artcal_ros.core.errors import CalibrationError
 from artcal_ros.core.live.guidance import NextPose, next_pose
 from artcal_ros.core.live.view_geometry import guess_camera_matrix
 
@@ -55,6 +60,10 @@ NOMINAL_NOISE_PX = 0.05  # point error assumed when the views carry no sigmas
 # this much (its constraint's weight grows as sin^2 of the tilt).
 MIN_TILT_DEG = 8.0
 FOCAL_RANGE = (0.2, 5.0)  # plausible focal lengths, times the image's larger side
+# The fit of focal length and first radial term is kept when it tells the focal length to
+# within this share (1 sigma; the lens's other terms, left out, bias it by a few times
+# that); a view facing the camera cannot.
+FIT_FOCAL_SD = 0.03
 
 
 def provisional_focal_px(views: Sequence[ViewPoints], image_size: tuple[int, int]) -> float:
@@ -103,9 +112,11 @@ def provisional_focal_px(views: Sequence[ViewPoints], image_size: tuple[int, int
 def provisional_solution(views: Sequence[ViewPoints], image_size: tuple[int, int], *,
                          model: str = "plumb_bob",
                          options: SolveOptions | None = None) -> Solution:
-    """The provisional camera of a few views: focal length from
-    :func:`provisional_focal_px`, principal point at the image centre, no distortion,
-    each view's pose from that camera; ``free`` as a solve with ``options`` frees them.
+    """The provisional camera of a few views: square pixels, the principal point at the
+    image centre, the focal length and first radial term fitted to the views (from
+    :func:`provisional_focal_px`'s focal length) when they tell the focal length, else
+    the nominal guess and no distortion; each view's pose from that camera. ``free`` as
+    a solve with ``options`` frees them.
 
     Args:
         views: at least one view with at least 4 points.
@@ -117,9 +128,41 @@ def provisional_solution(views: Sequence[ViewPoints], image_size: tuple[int, int
     K = np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
     D = np.zeros(len(DIST_NAMES[model]))
     poses = [estimate_pose(v, K, D, model) for v in views]
-    return Solution(K, D, model, np.array([r for r, _ in poses]).reshape(-1, 3),
-                    np.array([t for _, t in poses]).reshape(-1, 3),
+    rvecs = np.array([r for r, _ in poses]).reshape(-1, 3)
+    tvecs = np.array([t for _, t in poses]).reshape(-1, 3)
+    fitted = _fitted(list(views), K, D, (rvecs, tvecs), model, image_size)
+    if fitted is not None:
+        K, D, rvecs, tvecs = fitted
+    else:  # the homography's focal length is no better where the fit cannot tell it
+        K = guess_camera_matrix(image_size)
+        poses = [estimate_pose(v, K, D, model) for v in views]
+        rvecs = np.array([r for r, _ in poses]).reshape(-1, 3)
+        tvecs = np.array([t for _, t in poses]).reshape(-1, 3)
+    return Solution(K, D, model, rvecs, tvecs,
                     free_parameters(model, options=options or SolveOptions()))
+
+
+def _fitted(views: list[ViewPoints], K: np.ndarray, D: np.ndarray,
+            poses: tuple[np.ndarray, np.ndarray], model: str, image_size: tuple[int, int]
+            ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray] | None:
+    """(K, D, rvecs, tvecs) of the bundle adjustment of one focal length and the first
+    radial term from K, D and ``poses``; None when it fails or the views do not tell the
+    focal length to within :data:`FIT_FOCAL_SD`."""
+    free = (TIED_FOCAL, radial_names(model)[0])
+    try:
+        K1, D1, rv, tv = bundle_adjust(views, K, D, model, free=free, poses=poses,
+                                       max_iterations=30, tolerance=1e-8)
+        sol = Solution(K1, D1, model, rv, tv, free)
+        cov, _ = intrinsic_covariance(views, sol, residuals(views, sol))
+    except (CalibrationError, np.linalg.LinAlgError, ValueError, cv2.error):
+        return None
+    f = float(K1[0, 0])
+    lo, hi = FOCAL_RANGE
+    if not (np.all(np.isfinite(K1)) and np.all(np.isfinite(D1))
+            and lo * max(image_size) <= f <= hi * max(image_size)
+            and math.sqrt(max(float(cov[0, 0]), 0.0)) <= FIT_FOCAL_SD * f):
+        return None
+    return K1, D1, rv, tv
 
 
 def start_covariance(views: Sequence[ViewPoints], sol: Solution, image_size: tuple[int, int],
