@@ -47,7 +47,7 @@ def test_ready_turns_true_when_the_uncertainty_is_low_enough(
     assert first["projection uncertainty"] == "not yet (0 views)", first
     assert first["ready"] == "false"
     assert first["projection uncertainty needed"] == f"{MAX_UNCERTAINTY_PX:.3f}"
-    assert first["next pose"] == "after the first live solve"
+    assert first["next pose"] == "after the first view"
     replay = NodeProcess("replay", ["-p", f"bag:={bag.path}", "-p", "rate:=1.0",
                                     "-p", "loop:=true", "-r", f"{bag.topic}:=/ready/image"],
                          tmp_path)

@@ -160,7 +160,7 @@ def test_live_status_says_the_uncertainty_and_the_next_pose() -> None:
         snap = collector.snapshot()
         first = status.diagnostics(snap.readiness)
         assert first["projection uncertainty"] == f"not yet ({snap.readiness.views} views)"
-        assert first["next pose"] == "after the first live solve"
+        assert first["next pose"] == "after the first view"
         status.offer(snap)
         deadline = time.monotonic() + 60
         while status.suggestion is None and time.monotonic() < deadline:

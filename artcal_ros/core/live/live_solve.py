@@ -7,7 +7,8 @@ the views it solved before keep their poses, a new view's pose comes from the cu
 camera, and a few Levenberg-Marquardt steps (the poses eliminated, so a step costs one
 small dense solve) settle the lot. :class:`LiveSolve` runs it on its own thread ("live
 solve"), latest-wins: a collection offered while a solve runs replaces the one waiting,
-so an image callback or the overlay never waits for it.
+so an image callback or the overlay never waits for it. With fewer views than a solve needs
+it hands the usable views to ``on_early`` instead (guidance before the first solve).
 
 The figures are those of the final solve (:mod:`artcal_ros.core.calibrate.pipeline`): the
 same views (the selection of at most ``max_views``), points, weights re-scaled to the
@@ -156,6 +157,13 @@ class LiveSolver:
         self._size: tuple[int, int] | None = None
         self._poses: dict[int, tuple[np.ndarray, np.ndarray]] = {}
         self._last: Solution | None = None
+        self._early: list[ViewPoints] = []
+
+    @property
+    def early_views(self) -> list[ViewPoints]:
+        """The usable views of the last update when they were too few to solve (else
+        empty)."""
+        return list(self._early)
 
     def update(self, collection: Sequence[Detections],
                image_size: tuple[int, int]) -> LiveEstimate | None:
@@ -167,6 +175,7 @@ class LiveSolver:
         start = time.monotonic()
         self._follow(collection, image_size)
         usable = [v for v in self._points if v is not None]
+        self._early = usable if len(usable) < MIN_VIEWS else []
         if len(usable) < MIN_VIEWS:
             return None
         cfg = self.config
@@ -317,6 +326,8 @@ class LiveSolve(BackgroundTier[tuple[int, list[Detections], tuple[int, int]]]):
         on_update: called on the thread with each new estimate.
         on_error: called on the thread with an error a solve raised (the estimate stays
             the previous one; the next update starts cold).
+        on_early: called on the thread with (the usable views, image size, the
+            :attr:`generation` they belong to) when an update has too few views to solve.
         defer_while: while it returns True (frames wait for precise detection) a collection
             offered waits, up to :data:`MAX_DEFER_S`: on two busy cores the solve would
             otherwise take the time that measures the next views. Called with the thread's
@@ -326,11 +337,14 @@ class LiveSolve(BackgroundTier[tuple[int, list[Detections], tuple[int, int]]]):
     def __init__(self, board: Board, config: LiveSolveConfig | None = None, *,
                  on_update: Callable[[LiveEstimate], None] | None = None,
                  on_error: Callable[[BaseException], None] | None = None,
+                 on_early: Callable[[list[ViewPoints], tuple[int, int], int], None]
+                 | None = None,
                  defer_while: Callable[[], bool] | None = None) -> None:
         super().__init__("live solve")
         self._solver = LiveSolver(board, config)
         self._on_update = on_update
         self._on_error = on_error
+        self._on_early = on_early
         self._defer_while = defer_while
         self._offered = 0.0  # time.monotonic() of the offer waiting
         self._started = 0.0  # time.monotonic() the running update started
@@ -361,6 +375,13 @@ class LiveSolve(BackgroundTier[tuple[int, list[Detections], tuple[int, int]]]):
         """What the solve estimates now."""
         with self._commit:
             return self._solver.config
+
+    @property
+    def generation(self) -> int:
+        """Counts resets and new configurations: what ``on_early`` got is stale once this
+        differs from the generation it was given."""
+        with self._commit:
+            return self._generation
 
     def snapshot(self) -> LiveEstimate | None:
         """The last estimate (None before the first, and after a reset)."""
@@ -426,6 +447,10 @@ class LiveSolve(BackgroundTier[tuple[int, list[Detections], tuple[int, int]]]):
                 self._estimate = estimate
         if estimate is not None and self._on_update is not None:
             self._on_update(estimate)
+        elif estimate is None and not error and self._on_early is not None:
+            early = solver.early_views
+            if early:
+                self._on_early(early, size, generation)
 
     def stop(self, timeout: float = 1.0) -> bool:
         """End the thread (an update in progress finishes) and wait up to ``timeout`` s;

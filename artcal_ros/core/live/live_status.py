@@ -4,6 +4,8 @@
 (thread "live solve"). After every update, on that thread, it also works out where the
 board should be held next (:func:`~artcal_ros.core.live.guidance.next_pose`), so neither
 the image callback nor the overlay ever waits for a solve: they read the last results.
+Before the first solve (one or two views) the next pose comes from a provisional camera
+and the intrinsics' prior (:func:`~artcal_ros.core.live.guidance_start.first_pose`).
 """
 
 from __future__ import annotations
@@ -15,9 +17,11 @@ from typing import Any
 import numpy as np
 
 from artcal_ros.core.board import Board
+from artcal_ros.core.calibrate.model import ViewPoints
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.live.coverage import Readiness, Snapshot
 from artcal_ros.core.live.guidance import NextPose, next_pose, pose_match
+from artcal_ros.core.live.guidance_start import first_pose
 from artcal_ros.core.live.live_solve import LiveEstimate, LiveSolve, LiveSolveConfig
 from artcal_ros.core.live.overlay import draw_next_pose
 from artcal_ros.core.live.readiness import live_readiness, uncertainty_text
@@ -47,7 +51,7 @@ class LiveStatus:
         self._next_error = ""
         self.solve = LiveSolve(board, LiveSolveConfig.from_params(params),
                                on_update=self._on_update, on_error=on_error,
-                               defer_while=defer_while)
+                               on_early=self._on_early, defer_while=defer_while)
 
     def _on_update(self, estimate: LiveEstimate) -> None:
         # The live solve's thread: the next pose from the estimate just made.
@@ -59,6 +63,24 @@ class LiveStatus:
             suggestion, error = None, f"not found: {e}"
         with self._lock:
             if self.solve.snapshot() is estimate:  # not reset or replaced meanwhile
+                self._next, self._next_error = suggestion, error
+
+    def _on_early(self, views: list[ViewPoints], image_size: tuple[int, int],
+                  generation: int) -> None:
+        # The live solve's thread, fewer views than a solve needs: the next pose from a
+        # provisional camera of these views.
+        config = self.solve.config
+        weighted = any(v.sigma_px is not None and bool(np.isfinite(v.sigma_px).any())
+                       for v in views)
+        try:
+            suggestion = first_pose(views, self.board, image_size, model=config.model,
+                                    options=config.options, weighted=weighted)
+            error = "" if suggestion is not None else "no holdable pose shows the board"
+        except Exception as e:  # guidance that fails leaves the collection alone
+            suggestion, error = None, f"not found: {e}"
+        with self._lock:
+            # not reset, reconfigured or solved meanwhile
+            if self.solve.generation == generation and self.solve.snapshot() is None:
                 self._next, self._next_error = suggestion, error
 
     def offer(self, snap: Snapshot) -> None:
@@ -73,7 +95,7 @@ class LiveStatus:
 
     @property
     def suggestion(self) -> NextPose | None:
-        """Where to hold the board next (None before the first estimate)."""
+        """Where to hold the board next (None before the first view is solved for)."""
         with self._lock:
             return self._next
 
@@ -90,7 +112,8 @@ class LiveStatus:
             bound, suggestion, why = self._max_uncertainty, self._next, self._next_error
         if estimate is None:
             solve = self.solve.error or "waiting for 3 usable views"
-            pose = "after the first live solve"
+            pose = (suggestion.text if suggestion is not None
+                    else why or "after the first view")
         else:
             solve = (f"{estimate.seconds:.2f} s, {estimate.n_views} views"
                      + (", warm start" if estimate.warm else ""))
