@@ -17,7 +17,9 @@ where the board's layout puts them, and ``rim`` reads again, through the lens, t
 strong lens distorts too much to decode. The hot loops are numba
 kernels (compiled on first use and cached on disk); ``linalg`` has their small
 solves, ``workers`` the threads the model fit runs on (``ARTCAL_THREADS``, default 2).
-``frames`` detects a recording's frames on worker processes (offline, every frame).
+``frames`` detects a recording's frames on worker processes (offline, every frame);
+``stream_predict`` gives a Detector fed consecutive frames the markers the frames before
+place, so the quad finder searches only the rest of the image.
 A chessboard goes to ``chessboard``
 (OpenCV's grid finders, ids from the squares' colours); a ChArUco board runs the marker
 pipeline, then ``charuco`` places its corners from the markers. An AprilGrid (Kalibr) runs the
@@ -32,12 +34,13 @@ test/unit/test_layout.py checks both::
 
     0  frames
     1  detector
-    2  candidates   grid_search   rim   chessboard   charuco   circles
-    3  decode   edges   exposure   verify   circle_grid
-    4  plumb    centers   profiles   bends
-    5  sides    light
-    6  step_model   saddle   lens   image   patterns   tone   edge_shift
-    7  sampling   linalg   workers   config
+    2  stream_predict
+    3  candidates   grid_search   rim   chessboard   charuco   circles
+    4  decode   edges   exposure   verify   circle_grid
+    5  plumb    centers   profiles   bends
+    6  sides    light
+    7  step_model   saddle   lens   image   patterns   tone   edge_shift
+    8  sampling   linalg   workers   config
 """
 
 from artcal_ros.core.detect.detector import Detector, DetectorConfig, detect

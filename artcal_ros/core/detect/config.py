@@ -49,6 +49,10 @@ class DetectorConfig:
             fit the edges with the saturated pixels as censored data (docs/tone.md).
         grid_search: in an over-exposed frame, look for the markers the quad finder missed
             where the verified ones place them (:mod:`.grid_search`; marker grids only).
+        stream: a Detector's frames are taken as consecutive frames of one stream: the
+            markers the frames before verified are predicted, refined directly and the quad
+            finder searches only the rest of the image (:mod:`.stream_predict`; a frame the
+            prediction does not fit is searched whole).
     """
 
     gamma: float = 0.0
@@ -69,6 +73,7 @@ class DetectorConfig:
     edge_shift: bool = True
     censor_clipped: bool = True
     grid_search: bool = True
+    stream: bool = True
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any]) -> DetectorConfig:

@@ -4,7 +4,9 @@ The stages of one image, in :meth:`Detector.detect`'s order:
 
 1. candidates: quads and ids from OpenCV's ArUco detector on an 8-bit copy, the quads it
    could not read decoded again against the board's own patterns (:mod:`.candidates`);
-   only the board's ids, of the board's polarity;
+   only the board's ids, of the board's polarity. In a stream of consecutive frames, the
+   markers the frames before verified are predicted first and the quad finder searches
+   only the rest of the image (:mod:`.stream_predict`);
 2. exposure: whether the frame is clipped or partly saturated (:mod:`.exposure`);
 3. edges: every side fitted with a blurred-step model in linear light, bent by the lens
    (given, or estimated and pooled over frames), intersected into corners (:mod:`.edges`);
@@ -47,6 +49,7 @@ from artcal_ros.core.detect.lens import DivisionLens, Lens, LensPool, LensPoolSt
 from artcal_ros.core.detect.patterns import inner_border_cells, outer_neighbours
 from artcal_ros.core.detect.rim import read_through_lens
 from artcal_ros.core.detect.sampling import border_is_dark
+from artcal_ros.core.detect.stream_predict import StreamPredictor
 from artcal_ros.core.detect.tone import (
     ToneCurve,
     ToneEstimate,
@@ -150,12 +153,17 @@ class Detector:
                 half_above_px=self.config.half_search_above_px)
         self._lens_pool = LensPool()
         self._tone_pool = TonePool()
+        # quiet zone around a marker's border, in modules (mixed boards: half the gap)
+        self._quiet_modules = board.quiet_zone_m / board.module_length if board.bits else 0.0
+        self._stream: StreamPredictor | None = None
+        if self._candidates is not None and self.config.stream and self.config.refine_edges:
+            self._stream = StreamPredictor(board, self._candidates,
+                                           min_side_px=self.config.min_side_px,
+                                           quiet_modules=self._quiet_modules)
         # ChArUco markers sit sqrt(2) squares apart at the closest (see neighbour_support)
         self._grow_to: float | None = None
         if board.board_type == "charuco":
             self._grow_to = 0.45 * np.sqrt(2.0) * board.square_length / board.marker_length
-        # quiet zone around a marker's border, in modules (mixed boards: half the gap)
-        self._quiet_modules = board.quiet_zone_m / board.module_length if board.bits else 0.0
 
     def _outer_edges(self, ids: np.ndarray) -> np.ndarray | None:
         """Sides whose narrow quiet zone ends at a known edge: the next tile of a mixed board,
@@ -181,9 +189,22 @@ class Detector:
         return self._lens_pool.snapshot(), self._tone_pool.snapshot()
 
     def restore(self, state: tuple[LensPoolState, ToneState]) -> None:
-        """Go back to a :meth:`snapshot` (this detector's or another's of the same board)."""
+        """Go back to a :meth:`snapshot` (this detector's or another's of the same board);
+        the next frame is not taken as following the last one (:meth:`reset_stream`)."""
         self._lens_pool.restore(state[0])
         self._tone_pool.restore(state[1])
+        self.reset_stream()
+
+    @property
+    def predicted(self) -> bool:
+        """Whether the last frame's markers came from the frames before (predicted and
+        refined directly, the quad finder run only on the rest of the image)."""
+        return self._stream is not None and self._stream.predicted
+
+    def reset_stream(self) -> None:
+        """The next frame does not follow the last one: search it whole, predict nothing."""
+        if self._stream is not None:
+            self._stream.reset()
 
     def _fixed_gamma(self, dtype: np.dtype) -> float:
         """The configured gamma for images of ``dtype`` (0: estimate)."""
@@ -243,9 +264,31 @@ class Detector:
         frame = self._read(image)
         if self._candidates is None:     # a chessboard or a circle grid: points only
             return self._detect_points(frame, camera, source)
-        # 1. candidates: quads and ids of the board's markers
+        # 1. candidates: quads and ids of the board's markers (in a stream, the markers the
+        # frames before predict first: :mod:`.stream_predict`)
         clipped = is_clipped(frame.gray8)
-        quads, ids = self._candidates.find(frame.gray8, frame.lin, clipped=clipped)
+        stream = self._stream
+        if stream is None:
+            return self._markers(frame, *self._candidates.find(frame.gray8, frame.lin,
+                                                                clipped=clipped),
+                                 clipped, camera, source)
+        pools = self.snapshot()
+        dets = self._markers(frame, *stream.find(frame.gray8, frame.lin, clipped=clipped),
+                             clipped, camera, source)
+        if stream.fell_short(dets.ids):
+            # the prediction did not hold: this frame searched whole, its pools' evidence once
+            stream.full_search()
+            self._lens_pool.restore(pools[0])
+            self._tone_pool.restore(pools[1])
+            dets = self._markers(frame, *self._candidates.find(frame.gray8, frame.lin,
+                                                                clipped=clipped),
+                                 clipped, camera, source)
+        stream.update(dets.ids, dets.corners_px)
+        return dets
+
+    def _markers(self, frame: _Frame, quads: np.ndarray, ids: np.ndarray, clipped: bool,
+                 camera: CameraModel | HasCamera | None, source: str) -> Detections:
+        """Stages 2-5 of :meth:`detect` on the candidates, quads (N, 4, 2) and ids (N,)."""
         if len(ids) == 0:
             return replace(Detections.empty(frame.size, source), sharpness=frame.sharpness)
         quads, ids, dark = self._of_polarity(frame.lin, quads, ids)
