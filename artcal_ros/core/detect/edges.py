@@ -26,7 +26,7 @@ import numpy as np
 
 from artcal_ros.core.detect.bends import drop_flat_parabolas, trusted_bends
 from artcal_ros.core.detect.lens import Lens, LensPool
-from artcal_ros.core.detect.light import fit_in_light
+from artcal_ros.core.detect.light import fit_in_light, in_light
 from artcal_ros.core.detect.linalg import nanmedian_rows
 from artcal_ros.core.detect.plumb import estimate_division, lens_bend
 from artcal_ros.core.detect.profiles import coarse_offsets, gather_samples, sample_geometry
@@ -212,9 +212,9 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
     # edge beyond a narrow quiet zone waits for the lens-aware pass below.
     used_lens: Lens | None = lens
     later = lens is None and allow_curvature
-    fit_blur = _model_passes(lin, sides, model, settings,
-                             replace(cells, outer_same=None) if later else cells,
-                             passes=passes, fit_order=order, tone_probe=tone_probe)
+    fit_blur, light = _model_passes(lin, sides, model, settings,
+                                    replace(cells, outer_same=None) if later else cells,
+                                    passes=passes, fit_order=order, tone_probe=tone_probe)
     if later:
         used_lens = estimate_division(model, quads, sides.t, sides.present, lin.shape,
                                       pool=lens_pool)
@@ -225,13 +225,14 @@ def refine_quads(lin: np.ndarray, quads: np.ndarray, dark_inside: np.ndarray, bi
             sides.u, model.length, lin.shape, model if later else None, lens_pool)
         model.order, model.coef[:, 2] = np.full(S, 3), bend
         _model_passes(lin, sides, model, settings, cells, passes=1, fit_order=np.full(S, 2),
-                      lens=used_lens, start_blur=fit_blur, tone_probe=tone_probe)
+                      lens=used_lens, start_blur=fit_blur, light=light, tone_probe=tone_probe)
         model.cov[:, 2, 2] = bend_var  # the corners' sigmas carry the bend's
     else:
         drop_flat_parabolas(model)
         if later and outer_same is not None:
             _model_passes(lin, sides, model, settings, cells, passes=1,
-                          fit_order=model.order, start_blur=fit_blur, tone_probe=tone_probe)
+                          fit_order=model.order, start_blur=fit_blur, light=light,
+                          tone_probe=tone_probe)
     corners, sigma = intersect_sides(model, sides.a, sides.u, sides.n, M)
     side_ok = model.count >= 4
     ok = side_ok.reshape(M, 4).all(axis=1) & np.isfinite(corners).all(axis=(1, 2))
@@ -292,8 +293,9 @@ def _coarse_lines(lin: np.ndarray, quads: np.ndarray, sign: np.ndarray, lo: np.n
 def _model_passes(lin: np.ndarray, sides: SideLayout, model: SideModel,
                   settings: EdgeFitSettings, cells: BorderCells, *, passes: int,
                   fit_order: np.ndarray, lens: Lens | None = None,
-                  start_blur: np.ndarray | None = None,
-                  tone_probe: Callable[[ProbeFit], None] | None = None) -> np.ndarray:
+                  start_blur: np.ndarray | None = None, light: np.ndarray | None = None,
+                  tone_probe: Callable[[ProbeFit], None] | None = None
+                  ) -> tuple[np.ndarray, np.ndarray]:
     """Blurred-step model fits (see :mod:`~artcal_ros.core.detect.step_model`); updates ``model``.
 
     Samples inside the border stay ``settings.margin_px`` inside both neighbouring sides (near
@@ -310,10 +312,13 @@ def _model_passes(lin: np.ndarray, sides: SideLayout, model: SideModel,
         lens: optional lens (places the code cells along each side).
         start_blur: (S,) the blur the fit starts from (an earlier pass's), pixels; without,
             the frame's blur from a pilot fit of every 8th side.
+        light: (S,) the light's slope along each side from an earlier pass
+            (:func:`~.light.light_slopes`): the sides are fitted once, in that light;
+            without, fitted, and the sides the light changes along fitted again in it.
         tone_probe: see :func:`refine_quads`.
 
     Returns:
-        (S,) the fitted blur, pixels.
+        (S,) the fitted blur, pixels, and (S,) the light's slopes.
     """
     a, u, n, t, present = sides.a, sides.u, sides.n, sides.t, sides.present
     bits, quiet_modules = settings.bits, settings.quiet_modules
@@ -365,25 +370,28 @@ def _model_passes(lin: np.ndarray, sides: SideLayout, model: SideModel,
             fit_order=fit_order, normal=n,
             outer=None if known is None else known[sid].astype(np.float32),
             quiet_px=None if known is None else quiet_modules * quiet_m)
-        fit = partial(fit_step_model, values, samples, tol_px=_FIT_TOL_PX,
+        fit = partial(fit_step_model, samples=samples, tol_px=_FIT_TOL_PX,
                       censor_at=settings.censor_at)
 
         if fit_blur is None:
             # the frame's blur from a few sides first: the others then start close to
             # theirs (blur hardly varies across a frame) and need fewer steps
             few = np.flatnonzero(used > 0)[::_PILOT_EVERY]
-            pilot = fit(coef0=model.coef, blur0=np.full(S, 0.6), iterations=_PILOT_STEPS,
-                        sides=few)[2]
+            pilot = fit(values, coef0=model.coef, blur0=np.full(S, 0.6),
+                        iterations=_PILOT_STEPS, sides=few)[2]
             fit_blur = np.full(S, float(np.median(pilot[few])) if len(few) else 0.6)
         contrast = np.zeros(S)
-        first = fit(coef0=model.coef, blur0=fit_blur, iterations=_FIT_STEPS,
-                    contrast_out=contrast)
-        (coef, cov, fit_blur), scaled = fit_in_light(   # (no light field of clipped light)
-            partial(fit_step_model, samples=samples, tol_px=_FIT_TOL_PX, iterations=_FIT_STEPS,
-                    censor_at=settings.censor_at), values, basis[:, 1], sid, first, contrast,
-            a, u, model.length, (used >= 4) & (settings.censor_at is None) & settings.light_field)
-        fit = partial(fit_step_model, scaled, samples, tol_px=_FIT_TOL_PX,
-                      censor_at=settings.censor_at)
+        # the light along the sides: known from an earlier pass (one fit, in that light),
+        # else from this fit's contrasts, and the sides it changes along fitted again
+        scaled = values if light is None else in_light(values, basis[:, 1], sid, light)[0]
+        first = coef, cov, fit_blur = fit(scaled, coef0=model.coef, blur0=fit_blur,
+                                          iterations=_FIT_STEPS, contrast_out=contrast)
+        if light is None:  # (no light field of clipped light)
+            (coef, cov, fit_blur), scaled, light = fit_in_light(
+                partial(fit, iterations=_FIT_STEPS), values, basis[:, 1], sid, first, contrast,
+                a, u, model.length,
+                (used >= 4) & (settings.censor_at is None) & settings.light_field)
+        fit = partial(fit, scaled)
         if settings.censor_at is not None and rows:
             # (only sides that are clipped: a frame may be clipped away from the board)
             clipped = np.bincount(sid, weights=values >= settings.censor_at, minlength=S) >= 3
@@ -398,8 +406,8 @@ def _model_passes(lin: np.ndarray, sides: SideLayout, model: SideModel,
         model.coef = coef
         model.cov = cov
         model.count = used
-    assert fit_blur is not None  # passes >= 1
-    return fit_blur
+    assert fit_blur is not None and light is not None  # passes >= 1
+    return fit_blur, light
 
 
 # sides with between these shares of the other colour behind their border show their

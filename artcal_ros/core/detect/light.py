@@ -74,11 +74,30 @@ def light_slopes(contrast: np.ndarray, start: np.ndarray, u: np.ndarray,
     return np.where(np.isfinite(slope), slope, 0.0)
 
 
+def in_light(values: np.ndarray, tau: np.ndarray, side: np.ndarray, slope: np.ndarray
+             ) -> tuple[np.ndarray, np.ndarray]:
+    """The samples' values scaled to the light at their side's middle, and (L,) int the sides
+    whose light changes enough to be scaled (the values themselves where none does).
+
+    Args:
+        values: (N,) the samples' linear intensities; tau: (N,) their place along their
+            side (-1 to 1); side: (N,) their side.
+        slope: (S,) the light's change along each side (:func:`light_slopes`).
+    """
+    lit = np.flatnonzero(np.abs(slope) > _LIGHT_MIN)
+    if len(lit) == 0:
+        return values, lit
+    kept = np.zeros(len(slope))
+    kept[lit] = slope[lit]
+    return values / (1.0 + kept[side] * tau), lit
+
+
 def fit_in_light(fit: Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]],
                  values: np.ndarray, tau: np.ndarray, side: np.ndarray,
                  first: tuple[np.ndarray, np.ndarray, np.ndarray], contrast: np.ndarray,
                  start: np.ndarray, u: np.ndarray, length: np.ndarray, ok: np.ndarray,
-                 **kw: object) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], np.ndarray]:
+                 **kw: object
+                 ) -> tuple[tuple[np.ndarray, np.ndarray, np.ndarray], np.ndarray, np.ndarray]:
     """Sides fitted again where the light changes along them (module docstring).
 
     Args:
@@ -92,16 +111,16 @@ def fit_in_light(fit: Callable[..., tuple[np.ndarray, np.ndarray, np.ndarray]],
         start, u, length, ok: see :func:`light_slopes`.
 
     Returns:
-        (coef, cov, blur) with the lit sides' rows replaced, and the values scaled to the
-        light at their side's middle (the values themselves where no side changed).
+        (coef, cov, blur) with the lit sides' rows replaced, the values scaled to the
+        light at their side's middle (:func:`in_light`) and (S,) the light's slopes
+        (:func:`light_slopes`; a later fit of the same sides may start in that light).
     """
     slope = light_slopes(contrast, start, u, length, ok)
-    lit = np.flatnonzero(np.abs(slope) > _LIGHT_MIN)
+    scaled, lit = in_light(values, tau, side, slope)
     if len(lit) == 0:
-        return first, values
-    scaled = values / (1.0 + slope[side] * tau)
+        return first, values, slope
     coef, cov, blur = (np.array(x) for x in first)
     again = fit(scaled, coef0=coef, blur0=blur, sides=lit, contrast_out=contrast, **kw)
     for whole, part in zip((coef, cov, blur), again, strict=True):
         whole[lit] = part[lit]
-    return (coef, cov, blur), scaled
+    return (coef, cov, blur), scaled, slope
