@@ -31,7 +31,7 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect.candidates import CandidateFinder
 from artcal_ros.core.detect.decode import PatternTable
-from artcal_ros.core.detect.sampling import cell_means, module_grid, ring_median, ring_points
+from artcal_ros.core.detect.sampling import bilinear, ring_median, ring_points
 from artcal_ros.core.homography import (
     apply_h,
     homographies,
@@ -44,12 +44,13 @@ __all__ = ["FULL_EVERY", "MIN_HELD", "MIN_KNOWN", "StreamPredictor"]
 FULL_EVERY = 10  # a whole-image search at least every this many frames
 FLOW_WIDTH = 960  # frames are followed at most this wide, pixels
 _FLOW_WINDOW, _FLOW_LEVELS = 21, 3  # Lucas-Kanade window (pixels there) and pyramid levels
+_FLOW_POINTS = 48  # known markers followed at most; the rest are placed by them
 MIN_KNOWN = 4  # fewer verified markers in the frame before: search the whole image
 MIN_HELD = 0.8  # share of the known markers' predictions that must read and verify
 # a predicted quad must stay this far inside the image (pixels) to be refined directly
 _INSIDE_PX = 2.0
 _GROW_ROUNDS = 3  # rings of markers placed around the ones read, at most
-# the eight neighbouring cells, the four sharing a side first
+# the eight neighbouring cells (row, col), the four sharing a side first
 _NEIGHBOURS = ((0, 1), (0, -1), (1, 0), (-1, 0), (1, 1), (1, -1), (-1, 1), (-1, -1))
 
 
@@ -141,10 +142,8 @@ class StreamPredictor:
         """Quads (P, 4, 2) and ids (P,) read where this frame's markers are predicted, and
         the ids of the frame before that were expected in the image.
 
-        The known markers' followed quads are read as whatever board id their code shows
-        (a quad that slipped along the repeating board onto a neighbour reads as that
-        neighbour); around the quads read, the board's markers not read yet are placed by
-        the homography of an adjacent one and kept when their code reads as their own id.
+        Up to :data:`_FLOW_POINTS` known markers (spread over the board) are followed;
+        every quad placed is kept only where its code reads as its own id.
         """
         ids, corners, before = self._history[-1]
         centres = corners.mean(axis=1)
@@ -153,7 +152,9 @@ class StreamPredictor:
             ids0, corners0, _ = self._history[0]
             both = np.isin(ids, ids0)
             guess[both] += centres[both] - corners0[np.searchsorted(ids0, ids[both])].mean(1)
-        followed = self._flow(before, self._small, centres, guess)
+        followed = np.full_like(centres, np.nan)
+        some = slice(None, None, -(-len(ids) // _FLOW_POINTS))
+        followed[some] = self._flow(before, self._small, centres[some], guess[some])
         # each quad first moved as its own centre was followed: a centre that slipped
         # spoils only its own quad
         moved = corners + (followed - centres)[:, None]
@@ -162,17 +163,24 @@ class StreamPredictor:
         expected = inside | (~np.isfinite(moved).all(axis=(1, 2))
                              & self._inside(corners + (guess - centres)[:, None], size))
         quads, found = self._read(lin, moved[inside], ids[inside], clipped)
-        for _ in range(2):
-            # the markers that did not read placed again, by how the ones read moved
+        for step in range(3):
+            # the markers that did not read placed again, by how the ones read moved: over
+            # the whole image first (one homography, robust to the reads' few slips), then
+            # each by its neighbours
             where = np.full_like(centres, np.nan)
             at = np.searchsorted(ids, found)
             ok = (at < len(ids)) & (ids[np.minimum(at, len(ids) - 1)] == found)
             where[at[ok]] = quads[ok].mean(axis=1)
-            again = _moved(corners, centres, where, self.board.marker_cells(ids),
-                           self._grid.shape)
+            if step == 0:
+                if ok.sum() < MIN_KNOWN or ok.sum() == len(ids):
+                    continue
+                again = _homography_moved(corners, centres, where)
+            else:
+                again = _moved(corners, centres, where, self.board.marker_cells(ids),
+                               self._grid.shape)
             todo = self._inside(again, size) & ~np.isin(ids, found)
             q, i = self._read(lin, again[todo], ids[todo], clipped)
-            if not len(i):
+            if not len(i) and step:
                 break
             quads, found = _unique(np.concatenate([quads, q]), np.concatenate([found, i]))
         tried = set(ids[inside].tolist()) | set(found.tolist())
@@ -199,14 +207,15 @@ class StreamPredictor:
     def _flow(self, before: np.ndarray, now: np.ndarray, points: np.ndarray, guess: np.ndarray
               ) -> np.ndarray:
         """(K, 2) ``points`` (K, 2) of the frame before followed into this one (started at
-        ``guess``), NaN where lost; full-resolution pixels."""
+        ``guess``), NaN where lost; full-resolution pixels. ``before``, ``now``: the two
+        frames downscaled."""
         f = now.shape[1] / self._size[0]
         p0 = ((points + 0.5) * f - 0.5).astype(np.float32).reshape(-1, 1, 2)
         p1 = ((guess + 0.5) * f - 0.5).astype(np.float32).reshape(-1, 1, 2)
         p1, status, _ = cv2.calcOpticalFlowPyrLK(
             before, now, p0, p1, winSize=(_FLOW_WINDOW, _FLOW_WINDOW), maxLevel=_FLOW_LEVELS,
             flags=cv2.OPTFLOW_USE_INITIAL_FLOW,
-            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 20, 0.03))
+            criteria=(cv2.TERM_CRITERIA_COUNT | cv2.TERM_CRITERIA_EPS, 10, 0.05))
         out = (p1.reshape(-1, 2).astype(np.float64) + 0.5) / f - 0.5
         out[status.reshape(-1) == 0] = np.nan
         return out
@@ -218,18 +227,20 @@ class StreamPredictor:
         grid = self._grid
         rows, cols = grid.shape
         cells = self.board.marker_cells(ids)
-        new: dict[int, int] = {}  # new id -> the marker that places it
-        for k, (r, c) in enumerate(cells):
-            for dr, dc in _NEIGHBOURS:
-                rr, cc = r + dr, c + dc
-                if 0 <= rr < rows and 0 <= cc < cols:
-                    j = int(grid[rr, cc])
-                    if j >= 0 and j not in tried and j not in new:
-                        new[j] = k
-        if not new:
+        step = np.array(_NEIGHBOURS)
+        # (K, 8) neighbour cells, the four sharing a side first, each placed by the first
+        # marker next to it
+        r = (cells[:, None, 0] + step[None, :, 0]).T.ravel()
+        c = (cells[:, None, 1] + step[None, :, 1]).T.ravel()
+        src = np.tile(np.arange(len(ids)), len(step))
+        on = (r >= 0) & (r < rows) & (c >= 0) & (c < cols)
+        j = np.full(len(r), -1, np.int64)
+        j[on] = grid[r[on], c[on]]
+        fresh = (j >= 0) & ~np.isin(j, np.fromiter(tried, np.int64, len(tried)))
+        new_ids, first = np.unique(j[fresh], return_index=True)
+        if not len(new_ids):
             return np.zeros(0, np.int64), np.zeros((0, 4, 2))
-        new_ids = np.fromiter(new, np.int64, len(new))
-        src = np.fromiter(new.values(), np.int64, len(new))
+        src = src[fresh][first]
         H = homographies(self.board.object_corners(ids[src])[..., :2], corners[src])
         return new_ids, apply_h(H, self.board.object_corners(new_ids)[..., :2])
 
@@ -273,6 +284,18 @@ def _downscaled(gray8: np.ndarray) -> np.ndarray:
     return np.asarray(cv2.resize(gray8[:h * k, :w * k], (w, h), interpolation=cv2.INTER_AREA))
 
 
+def _homography_moved(corners: np.ndarray, centres: np.ndarray, followed: np.ndarray
+                      ) -> np.ndarray:
+    """(N, 4, 2) ``corners`` moved by the one homography that carries the ``centres`` (N, 2)
+    to where they were ``followed`` (N, 2, NaN where not), fitted robustly; NaN when none
+    fits."""
+    ok = np.isfinite(followed).all(axis=1)
+    H, _ = cv2.findHomography(centres[ok], followed[ok], cv2.RANSAC, 3.0)
+    if H is None:
+        return np.full_like(corners, np.nan)
+    return apply_h(np.broadcast_to(H, (len(corners), 3, 3)), corners)
+
+
 def _moved(corners: np.ndarray, centres: np.ndarray, followed: np.ndarray, cells: np.ndarray,
            shape: tuple[int, int]) -> np.ndarray:
     """(N, 4, 2) ``corners`` moved by the affine map, per marker, that best carries its own
@@ -310,17 +333,24 @@ def _moved(corners: np.ndarray, centres: np.ndarray, followed: np.ndarray, cells
     return np.asarray(out)
 
 
+def _module_centres(n: int) -> np.ndarray:
+    """(n * n, 2) the centres of a marker's modules, row-major, in module units."""
+    y, x = np.meshgrid(np.arange(n) + 0.5, np.arange(n) + 0.5, indexing="ij")
+    return np.stack([x.ravel(), y.ravel()], axis=1)
+
+
 def _reads_as(lin: np.ndarray, quads: np.ndarray, ids: np.ndarray, table: PatternTable,
               max_errors: int = 2, ambiguity: float = 0.2) -> np.ndarray:
-    """(Q,) bool: each quad's modules, thresholded halfway between its border's level and
-    its quiet zone's, disagree with its own id's pattern (in the given corner order) in at
-    most ``max_errors`` modules, with at most 40 % too close to the threshold to tell (as
-    :func:`~.decode.decode_quads` reads a quad)."""
+    """(Q,) bool: each quad's modules (read at their centres), thresholded halfway between
+    its border's level and its quiet zone's, disagree with its own id's pattern (in the
+    given corner order) in at most ``max_errors`` modules, with at most 40 % too close to the
+    threshold to tell (as :func:`~.decode.decode_quads` reads a quad)."""
     if not len(ids):
         return np.zeros(0, bool)
     n = table.n
     H = module_homographies(np.ascontiguousarray(quads, dtype=np.float64), n - 2)
-    vals = cell_means(lin, H, module_grid(n, 0.22)).reshape(len(ids), n * n)
+    pts = apply_h(H, np.broadcast_to(_module_centres(n), (len(H), n * n, 2)))
+    vals = bilinear(lin, pts[..., 0], pts[..., 1])
     quiet = ring_median(lin, H, ring_points(np.linspace(0.5, n - 0.5, 2 * n), -0.5, n + 0.5))
     edge = np.ones((n, n), bool)
     edge[1:-1, 1:-1] = False
