@@ -1,4 +1,4 @@
-"""Small numerics: a dense solve and a sort for the compiled kernels, and row medians.
+"""Small numerics: a dense solve and a selection for the compiled kernels, and row medians.
 
 The kernels use these rather than numba's ``np.linalg`` (it needs SciPy's LAPACK) and
 ``np.sort`` / ``np.median`` (their generic implementations took most of the ~45 s of
@@ -10,7 +10,7 @@ from __future__ import annotations
 import numpy as np
 from numba import njit
 
-__all__ = ["median_small", "nanmedian_rows", "solve", "sort_small"]
+__all__ = ["median_small", "nanmedian_rows", "select_small", "solve"]
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
@@ -50,72 +50,56 @@ def solve(A: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
-def sort_small(x: np.ndarray, n: int) -> None:
-    """Sort the first n entries of a short 1-D array in place, ascending (Shell sort)."""
-    gap = 1
-    while gap < n // 3:
-        gap = 3 * gap + 1
-    while gap > 0:
-        for i in range(gap, n):
-            v = x[i]
-            j = i
-            while j >= gap and x[j - gap] > v:
-                x[j] = x[j - gap]
-                j -= gap
-            x[j] = v
-        gap //= 3
+def select_small(x: np.ndarray, n: int, k: int) -> tuple[float, float]:
+    """The k-th and (k+1)-th smallest (inf for k = n - 1) of the first n entries of a 1-D
+    array without NaN (k from 0), which are left as they are.
 
-
-@njit(cache=True, error_model="numpy", nogil=True)
-def _select(x: np.ndarray, n: int, k: int) -> float:
-    """The k-th smallest of the first n entries of x (no NaN), which are reordered so that
-    none before index k is larger and none after it smaller (Hoare's selection)."""
-    lo, hi = 0, n - 1
-    while lo < hi:
-        mid = (lo + hi) // 2
-        # the median of three as the pivot
-        if x[mid] < x[lo]:
-            x[mid], x[lo] = x[lo], x[mid]
-        if x[hi] < x[lo]:
-            x[hi], x[lo] = x[lo], x[hi]
-        if x[hi] < x[mid]:
-            x[hi], x[mid] = x[mid], x[hi]
-        pivot = x[mid]
-        i, j = lo, hi
-        while i <= j:
-            while x[i] < pivot:
-                i += 1
-            while x[j] > pivot:
-                j -= 1
-            if i <= j:
-                x[i], x[j] = x[j], x[i]
-                i += 1
-                j -= 1
-        # x[lo..j] <= pivot <= x[i..hi], and what lies between equals the pivot
-        if k <= j:
-            hi = j
-        elif k >= i:
-            lo = i
+    Each round moves the values below and above a pivot (the median of three) to the two
+    ends of the other buffer, with no branch on the values (a branch would guess wrong on
+    half of them), and goes on in the part that holds rank k: linear in n on average.
+    """
+    src, dst, spare = x, np.empty(n), np.empty(n)
+    s0, m = 0, n          # the candidates are src[s0:s0 + m], rank k among them
+    above = np.inf        # the smallest value above every candidate
+    while m > 1:
+        p0, p1, p2 = src[s0], src[s0 + m // 2], src[s0 + m - 1]
+        if p0 > p1:
+            p0, p1 = p1, p0
+        if p1 > p2:
+            p1 = p2
+        pivot = max(p0, p1)
+        lo, hi = 0, m - 1
+        for i in range(s0, s0 + m):
+            v = src[i]
+            dst[lo] = v
+            dst[hi] = v
+            lo += v < pivot
+            hi -= v > pivot
+        # dst[:lo] < pivot, dst[hi + 1:m] > pivot, and lo <= k <= hi ranks the pivot itself
+        if k < lo:
+            above = pivot
+            s0, m = 0, lo
+        elif k > hi:
+            k -= hi + 1
+            s0, m = hi + 1, m - 1 - hi
         else:
-            break
-    return float(x[k])
+            nxt = pivot if k < hi else above
+            for i in range(hi + 1, m):
+                nxt = min(nxt, dst[i])
+            return pivot, nxt
+        src, dst, spare = dst, spare, dst
+    return src[s0], above
 
 
 @njit(cache=True, error_model="numpy", nogil=True)
 def median_small(x: np.ndarray, n: int) -> float:
     """Median of the first n (> 0) entries of a 1-D array without NaN, the mean of the two
-    middle values for an even n (as sorting would give); reorders those entries.
+    middle values for an even n (as sorting would give).
 
-    A selection, not a sort: linear in n where :func:`sort_small` is not.
+    A selection (:func:`select_small`), not a sort: linear in n on average.
     """
-    k = (n - 1) // 2
-    a = _select(x, n, k)
-    b = a
-    if n % 2 == 0:
-        b = x[k + 1]
-        for i in range(k + 2, n):
-            b = min(b, x[i])
-    return 0.5 * (a + b)
+    a, b = select_small(x, n, (n - 1) // 2)
+    return 0.5 * (a + (b if n % 2 == 0 else a))
 
 
 def nanmedian_rows(x: np.ndarray) -> np.ndarray:

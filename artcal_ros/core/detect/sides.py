@@ -16,7 +16,7 @@ import numpy as np
 from numba import njit
 
 from artcal_ros.core.detect.lens import Lens
-from artcal_ros.core.detect.linalg import solve, sort_small
+from artcal_ros.core.detect.linalg import select_small, solve
 from artcal_ros.core.detect.step_model import norm_cdf_pdf
 from artcal_ros.core.detect.workers import run_all, split_even
 from artcal_ros.core.homography import apply_one, module_homographies
@@ -165,8 +165,7 @@ def _robust_fit(t: np.ndarray, s: np.ndarray, valid: np.ndarray, length: np.ndar
                     buf[m] = abs(res[j])
                     m += 1
             # robust sigma from the median absolute residual (the upper middle value)
-            sort_small(buf, m)
-            med = buf[m // 2] if m > 0 else 0.0
+            med = select_small(buf, m, m // 2)[0] if m > 0 else 0.0
             scale = max(1.4826 * med, min_sigma)
             for j in range(K):
                 w[j] = 1.0 if (valid[k, j] and abs(res[j]) <= reject * scale) else 0.0

@@ -112,22 +112,26 @@ def pixel_esf(d: float, sigma: float, box_a: float, box_b: float
 
 
 @njit(cache=True, error_model="numpy")
-def _median_of(values: np.ndarray, s: np.ndarray, basis: np.ndarray, c: np.ndarray, lo: int,
-               hi: int, below: bool) -> float:
-    """Median of values[lo:hi] more than 0.3 px inside (below) or outside the edge c (3,).
+def _levels(values: np.ndarray, s: np.ndarray, basis: np.ndarray, c: np.ndarray, lo: int,
+            hi: int) -> tuple[float, float]:
+    """Medians of values[lo:hi] more than 0.3 px inside and outside the edge c (3,).
 
-    NaN for none; the offset from the edge is ``s - basis . c``.
+    0 where there are none; the offset from the edge is ``s - basis . c``.
     """
-    buf = np.empty(hi - lo)
-    m = 0
+    n = hi - lo
+    buf = np.empty(n)   # those inside from the front, those outside from the back
+    inside = outside = 0
     for i in range(lo, hi):
         rel = s[i] - (basis[i, 0] * c[0] + basis[i, 1] * c[1] + basis[i, 2] * c[2])
-        if (rel < -0.3) if below else (rel > 0.3):
-            buf[m] = values[i]
-            m += 1
-    if m == 0:
-        return np.nan
-    return median_small(buf, m)
+        if rel < -0.3:
+            buf[inside] = values[i]
+            inside += 1
+        elif rel > 0.3:
+            outside += 1
+            buf[n - outside] = values[i]
+    a = median_small(buf, inside) if inside else np.nan
+    b = median_small(buf[n - outside:], outside) if outside else np.nan
+    return (0.0 if np.isnan(a) else a), (0.0 if np.isnan(b) else b)
 
 
 @njit(cache=True, error_model="numpy")
@@ -258,10 +262,7 @@ def _fit_sides(values: np.ndarray, s: np.ndarray, starts: np.ndarray, basis: np.
         lo, hi = starts[k], starts[k + 1]
         quad = 1.0 if fit_order[k] >= 3 else 0.0
         box_a, box_b = abs(normal[k, 0]), abs(normal[k, 1])
-        A = _median_of(values, s, basis, coef0[k], lo, hi, True)
-        B = _median_of(values, s, basis, coef0[k], lo, hi, False)
-        A = 0.0 if np.isnan(A) else A
-        B = 0.0 if np.isnan(B) else B
+        A, B = _levels(values, s, basis, coef0[k], lo, hi)
         p = np.empty(6)
         for j in range(3):
             p[j] = coef0[k, j]
