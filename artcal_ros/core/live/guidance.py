@@ -9,8 +9,10 @@ board points that fall inside the image). The candidate whose sum gives the lowe
 projection uncertainty RMS over the image (as :func:`parameter_effect_px` defines it) wins.
 
 The candidates (:mod:`~artcal_ros.core.live.guidance_candidates`) are poses a person can
-hold: the board filling 20-80 % of the image, facing the camera or tilted 20, 35 or 50
-degrees towards one of eight directions, over the image's centre, edges or corners.
+hold: the board facing the camera or tilted 20, 35 or 50 degrees towards one of eight
+directions, over the image's centre, edges or corners, its visible part covering 15-85 % of
+the image. Before the first solve :func:`~artcal_ros.core.live.guidance_start.first_pose`
+ranks them with a provisional camera.
 """
 
 from __future__ import annotations

@@ -1,9 +1,11 @@
 """The holdable board poses :func:`~artcal_ros.core.live.guidance.next_pose` chooses from,
 and the information about the free intrinsics each one's view would bring.
 
-Candidates are poses a person can hold: the board filling 20-80 % of the image, facing the
-camera or tilted 20, 35 or 50 degrees towards one of eight directions, placed over the
-image's centre, its four edges or its four corners. "Tilted left" means the board's face
+Candidates are poses a person can hold: the board facing the camera or tilted 20, 35 or 50
+degrees towards one of eight directions, placed over the image's centre, its four edges or
+its four corners, at distances where it would cover 25-150 % of the image facing the
+camera; those whose visible part covers 15-85 % of the image are kept (so a tilted board,
+foreshortened, may come closer than a facing one). "Tilted left" means the board's face
 turned towards the image's left: its left edge farther from the camera than its right.
 """
 
@@ -20,7 +22,9 @@ from artcal_ros.core.board import Board
 from artcal_ros.core.calibrate.model import free_jacobian, project_with_jacobian
 from artcal_ros.core.calibrate.solve import Solution, ViewPoints
 
-FILLS = (0.25, 0.45, 0.65, 0.8)  # share of the image area the board covers, facing the camera
+# Distances: the share of the image area the board would cover facing the camera (above 1:
+# closer than a facing board fits; only tilted boards keep their visible part within limits).
+FILLS = (0.25, 0.45, 0.65, 0.8, 1.0, 1.25, 1.5)
 TILTS_DEG = (20.0, 35.0, 50.0)
 TILT_DIRECTIONS = ("right", "down-right", "down", "down-left", "left", "up-left", "up",
                    "up-right")  # every 45 degrees, image x right, y down
