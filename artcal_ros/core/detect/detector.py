@@ -272,10 +272,10 @@ class Detector:
             return self._markers(frame, *self._candidates.find(frame.gray8, frame.lin,
                                                                 clipped=clipped),
                                  clipped, camera, source)
-        pools = self.snapshot()
-        dets = self._markers(frame, *stream.find(frame.gray8, frame.lin, clipped=clipped),
-                             clipped, camera, source)
-        if stream.fell_short(dets.ids):
+        found = stream.find(frame.gray8, frame.lin, clipped=clipped)
+        pools = self.snapshot() if stream.predicted else None
+        dets = self._markers(frame, *found, clipped, camera, source)
+        if pools is not None and stream.fell_short(dets.ids):
             # the prediction did not hold: this frame searched whole, its pools' evidence once
             stream.full_search()
             self._lens_pool.restore(pools[0])
