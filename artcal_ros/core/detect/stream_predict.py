@@ -31,7 +31,7 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect.candidates import CandidateFinder
 from artcal_ros.core.detect.decode import PatternTable
-from artcal_ros.core.detect.sampling import bilinear, ring_median, ring_points
+from artcal_ros.core.detect.sampling import bilinear, module_grid, ring_median, ring_points
 from artcal_ros.core.homography import (
     apply_h,
     homographies,
@@ -45,6 +45,7 @@ FULL_EVERY = 10  # a whole-image search at least every this many frames
 FLOW_WIDTH = 960  # frames are followed at most this wide, pixels
 _FLOW_WINDOW, _FLOW_LEVELS = 21, 3  # Lucas-Kanade window (pixels there) and pyramid levels
 _FLOW_POINTS = 48  # known markers followed at most; the rest are placed by them
+_READ_SPREAD = 0.25  # a quad refined directly reads with samples this far apart, modules
 MIN_KNOWN = 4  # fewer verified markers in the frame before: search the whole image
 MIN_HELD = 0.8  # share of the known markers' predictions that must read and verify
 # a predicted quad must stay this far inside the image (pixels) to be refined directly
@@ -107,8 +108,12 @@ class StreamPredictor:
         held = np.isin(known, ids)
         if len(known) < MIN_KNOWN or held.mean() < MIN_HELD:
             return self._full(gray8, lin, clipped, size)
+        # only the quads placed to a fraction of a module are refined directly (from a
+        # quad further off the edge fit might settle on another edge); the quad finder
+        # finds the rest
+        quads, ids = self._read(lin, quads, ids, clipped, _READ_SPREAD)
         self._since_full += 1
-        self.predicted, self._known = True, known[held]
+        self.predicted, self._known = True, known[np.isin(known, ids)]
         fq, fids = self.finder.find(self._painted(gray8, quads), lin, clipped=clipped)
         return _merge(quads, ids, fq, fids)
 
@@ -244,14 +249,14 @@ class StreamPredictor:
         H = homographies(self.board.object_corners(ids[src])[..., :2], corners[src])
         return new_ids, apply_h(H, self.board.object_corners(new_ids)[..., :2])
 
-    def _read(self, lin: np.ndarray, quads: np.ndarray, ids: np.ndarray, clipped: bool
-              ) -> tuple[np.ndarray, np.ndarray]:
+    def _read(self, lin: np.ndarray, quads: np.ndarray, ids: np.ndarray, clipped: bool,
+              spread: float = 0.0) -> tuple[np.ndarray, np.ndarray]:
         """The quads (Q, 4, 2) whose code reads as their own id (Q,) in this corner order
         (a quad turned or slipped onto another marker does not), and those ids."""
         ok = np.zeros(len(ids), bool)
         for table in [self.finder.patterns] + ([self.finder.clipped_patterns] if clipped
                                                else []):
-            ok[~ok] = _reads_as(lin, quads[~ok], ids[~ok], table)
+            ok[~ok] = _reads_as(lin, quads[~ok], ids[~ok], table, spread)
         return quads[ok], ids[ok]
 
     def _painted(self, gray8: np.ndarray, quads: np.ndarray) -> np.ndarray:
@@ -333,32 +338,31 @@ def _moved(corners: np.ndarray, centres: np.ndarray, followed: np.ndarray, cells
     return np.asarray(out)
 
 
-def _module_centres(n: int) -> np.ndarray:
-    """(n * n, 2) the centres of a marker's modules, row-major, in module units."""
-    y, x = np.meshgrid(np.arange(n) + 0.5, np.arange(n) + 0.5, indexing="ij")
-    return np.stack([x.ravel(), y.ravel()], axis=1)
-
-
 def _reads_as(lin: np.ndarray, quads: np.ndarray, ids: np.ndarray, table: PatternTable,
-              max_errors: int = 2, ambiguity: float = 0.2) -> np.ndarray:
-    """(Q,) bool: each quad's modules (read at their centres), thresholded halfway between
-    its border's level and its quiet zone's, disagree with its own id's pattern (in the
-    given corner order) in at most ``max_errors`` modules, with at most 40 % too close to the
-    threshold to tell (as :func:`~.decode.decode_quads` reads a quad)."""
+              spread: float = 0.0, max_errors: int = 2, ambiguity: float = 0.2) -> np.ndarray:
+    """(Q,) bool: each quad's modules, thresholded halfway between its border's level and
+    its quiet zone's, disagree with its own id's pattern (in the given corner order) in at
+    most ``max_errors`` modules, and at least 60 % of them read clearly (as
+    :func:`~.decode.decode_quads` reads a quad). A module is read at its centre, or with
+    ``spread`` > 0 at 3 x 3 samples that far apart (modules), all of which must agree: a
+    quad placed a quarter module or more off does not read so."""
     if not len(ids):
         return np.zeros(0, bool)
     n = table.n
     H = module_homographies(np.ascontiguousarray(quads, dtype=np.float64), n - 2)
-    pts = apply_h(H, np.broadcast_to(_module_centres(n), (len(H), n * n, 2)))
-    vals = bilinear(lin, pts[..., 0], pts[..., 1])
+    grid = module_grid(n, spread)
+    if spread == 0:
+        grid = grid[4::9]
+    pts = apply_h(H, np.broadcast_to(grid, (len(H), *grid.shape)))
+    vals = bilinear(lin, pts[..., 0], pts[..., 1]).reshape(len(ids), n * n, -1)
     quiet = ring_median(lin, H, ring_points(np.linspace(0.5, n - 0.5, 2 * n), -0.5, n + 0.5))
     edge = np.ones((n, n), bool)
     edge[1:-1, 1:-1] = False
-    level = np.median(vals[:, edge.ravel()], axis=1)
+    level = np.median(vals[:, edge.ravel()].mean(axis=2), axis=1)
     thr = 0.5 * (level + quiet)
     band = ambiguity * np.abs(quiet - level)
-    white = vals > (thr + band)[:, None]
-    black = vals < (thr - band)[:, None]
+    white = (vals > (thr + band)[:, None, None]).all(axis=2)
+    black = (vals < (thr - band)[:, None, None]).all(axis=2)
     # the table lists the board's ids in order (then their inverses, any polarity)
     best = np.full(len(ids), n * n)
     for first in range(0, len(table.ids), len(np.unique(table.ids))):
