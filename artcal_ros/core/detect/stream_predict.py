@@ -45,7 +45,8 @@ FULL_EVERY = 10  # a whole-image search at least every this many frames
 FLOW_WIDTH = 960  # frames are followed at most this wide, pixels
 _FLOW_WINDOW, _FLOW_LEVELS = 21, 3  # Lucas-Kanade window (pixels there) and pyramid levels
 _FLOW_POINTS = 48  # known markers followed at most; the rest are placed by them
-_READ_SPREAD = 0.25  # a quad refined directly reads with samples this far apart, modules
+_READ_SPREAD = 0.25  # a quad refined directly reads with samples this far apart, modules,
+_PLACED_PX = 2.5  # and out to this far from its modules' edges (the edge fit's reach is ~4 px)
 MIN_KNOWN = 4  # fewer verified markers in the frame before: search the whole image
 MIN_HELD = 0.8  # share of the known markers' predictions that must read and verify
 # a predicted quad must stay this far inside the image (pixels) to be refined directly
@@ -344,16 +345,23 @@ def _reads_as(lin: np.ndarray, quads: np.ndarray, ids: np.ndarray, table: Patter
     its quiet zone's, disagree with its own id's pattern (in the given corner order) in at
     most ``max_errors`` modules, and at least 60 % of them read clearly (as
     :func:`~.decode.decode_quads` reads a quad). A module is read at its centre, or with
-    ``spread`` > 0 at 3 x 3 samples that far apart (modules), all of which must agree: a
-    quad placed a quarter module or more off does not read so."""
+    ``spread`` > 0 at 3 x 3 samples at least that far apart (modules), all of which must
+    agree, and on large modules out to :data:`_PLACED_PX` of their edges: a quad placed a
+    quarter module or that many pixels off does not read so."""
     if not len(ids):
         return np.zeros(0, bool)
     n = table.n
     H = module_homographies(np.ascontiguousarray(quads, dtype=np.float64), n - 2)
-    grid = module_grid(n, spread)
     if spread == 0:
-        grid = grid[4::9]
-    pts = apply_h(H, np.broadcast_to(grid, (len(H), *grid.shape)))
+        grid = module_grid(n, 0.0)[4::9]
+        pts = apply_h(H, np.broadcast_to(grid, (len(H), *grid.shape)))
+    else:
+        # at least spread, and on large modules out to _PLACED_PX of the module's edges
+        module_px = shortest_sides(quads) / n
+        s = np.clip(0.5 - _PLACED_PX / np.maximum(module_px, 1e-9), spread, 0.45)
+        unit = module_grid(n, 1.0) - module_grid(n, 0.0)
+        grid = module_grid(n, 0.0)[None] + s[:, None, None] * unit[None]
+        pts = apply_h(H, grid)
     vals = bilinear(lin, pts[..., 0], pts[..., 1]).reshape(len(ids), n * n, -1)
     quiet = ring_median(lin, H, ring_points(np.linspace(0.5, n - 0.5, 2 * n), -0.5, n + 0.5))
     edge = np.ones((n, n), bool)
