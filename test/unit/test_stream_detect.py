@@ -9,6 +9,7 @@ import pytest
 
 from artcal_ros.core.board import Board
 from artcal_ros.core.detect import Detector, DetectorConfig
+from artcal_ros.core.detect.frames import detect_frames
 from artcal_ros.core.detections import Detections
 from artcal_ros.synth import Camera, RenderedView, render_view
 from artcal_ros.synth.backdrop import Backdrop
@@ -132,3 +133,14 @@ def test_restore_starts_a_run_afresh() -> None:
     assert not a.predicted and not b.predicted
     np.testing.assert_array_equal(da.ids, db.ids)
     np.testing.assert_array_equal(da.corners_px, db.corners_px)
+
+
+def test_a_recordings_runs_give_the_same_results_on_any_number_of_workers(
+        sweep: list[RenderedView]) -> None:
+    """detect_frames on consecutive frames (the runs predict from their own frames only)."""
+    frames = [(str(k), v.image) for k, v in enumerate(sweep[:11])]
+    one, two = (list(detect_frames(frames, Detector(Board()), workers=w, warmup=2, run=3))
+                for w in (1, 2))
+    for a, b in zip(one, two, strict=True):
+        np.testing.assert_array_equal(a.ids, b.ids)
+        np.testing.assert_array_equal(a.corners_px, b.corners_px)
