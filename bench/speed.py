@@ -10,7 +10,8 @@ cluttered wall behind the board) is rendered once; then, per thread count, the m
 time per frame of:
 
 - cold ``detect()`` (a new :class:`Detector` per frame: no history);
-- one streaming :class:`Detector` fed the frames in order (precise, same accuracy);
+- one streaming :class:`Detector` (``DetectorConfig(stream=True)``: each frame's markers
+  predicted from the frames before) fed the frames in order (precise, same accuracy);
 - the node's fast tier, :class:`MarkerTracker` (approximate markers for the overlay and
   view selection), seeded with the precise detection of the frame before (timed and
   checked against the truth), and once more with each precise detection arriving as many
@@ -45,7 +46,7 @@ import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.detect import Detector, detect
+from artcal_ros.core.detect import Detector, DetectorConfig, detect
 from artcal_ros.core.detect.frames import detect_frames
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.live.tracking import MarkerTracker
@@ -222,7 +223,7 @@ def _time_frames(name: str, views: list[RenderedView], threads: int, repeats: in
     for _ in range(repeats):
         precise.clear()
         cold.append(_median_ms(lambda im: precise.append(detect(im, board)), frames))
-        stream.append(_median_ms(Detector(board).detect, frames))
+        stream.append(_median_ms(Detector(board, DetectorConfig(stream=True)).detect, frames))
         # the previous frame's precise detection known (the streams target's premise)
         times, shown = track_stream(board, frames, precise, 1)
         tracked.append(1e3 * float(np.median(times)))

@@ -17,6 +17,7 @@ from artcal_ros.synth.poses import ease_between, random_poses
 
 SMALL = Board(cols=6, rows=4)
 CAM = Camera.preset("webcam")
+STREAM = DetectorConfig(stream=True)  # consecutive frames: the markers predicted
 
 
 def _pose(board: Board, x_m: float, y_m: float, z_m: float, roll_deg: float = 0.0,
@@ -62,7 +63,7 @@ def sweep() -> list[RenderedView]:
 
 def test_streamed_sweep_matches_cold_frame_by_frame(sweep: list[RenderedView]) -> None:
     board = Board()
-    streamed, plain = Detector(board), Detector(board, DetectorConfig(stream=False))
+    streamed, plain = Detector(board, STREAM), Detector(board)
     predicted, err_s, err_p, found_s, found_p = 0, [], [], 0, 0
     for view in sweep:
         s, p = streamed.detect(view.image), plain.detect(view.image)
@@ -88,7 +89,7 @@ def test_board_leaving_turning_and_returning_gives_no_wrong_id() -> None:
     poses = ([_pose(SMALL, x, 0.0, 1.0) for x in np.linspace(-0.05, 1.15, 9)]  # leaves
              + [_pose(SMALL, 0.0, 0.0, 1.0, roll) for roll in (0, 3, 6, 50, 95, 140, 185)])
     views = [render_view(SMALL, CAM, r, t, rng=rng) for r, t in poses]
-    det = Detector(SMALL)
+    det = Detector(SMALL, STREAM)
     found = []
     for view in views:
         dets = det.detect(view.image)
@@ -102,7 +103,7 @@ def test_board_leaving_turning_and_returning_gives_no_wrong_id() -> None:
                          ids=["same board", "overlapping ids"])
 def test_second_board_appearing_gives_no_wrong_id(other: Board) -> None:
     rng = np.random.default_rng(5)
-    det = Detector(SMALL)
+    det = Detector(SMALL, STREAM)
     ours = [render_view(SMALL, CAM, *_pose(SMALL, -0.3 + 0.005 * k, 0.0, 1.2), rng=rng)
             for k in range(8)]
     theirs = render_view(other, CAM, *_pose(other, 0.27, 0.02, 1.2, 20.0), rng=rng)
@@ -123,7 +124,7 @@ def test_restore_starts_a_run_afresh() -> None:
     rng = np.random.default_rng(9)
     views = [render_view(SMALL, CAM, *_pose(SMALL, 0.01 * k, 0.0, 1.0), rng=rng)
              for k in range(3)]
-    a, b = Detector(SMALL), Detector(SMALL)
+    a, b = Detector(SMALL, STREAM), Detector(SMALL, STREAM)
     state = a.snapshot()
     for view in views:
         a.detect(view.image)
@@ -139,7 +140,8 @@ def test_a_recordings_runs_give_the_same_results_on_any_number_of_workers(
         sweep: list[RenderedView]) -> None:
     """detect_frames on consecutive frames (the runs predict from their own frames only)."""
     frames = [(str(k), v.image) for k, v in enumerate(sweep[:11])]
-    one, two = (list(detect_frames(frames, Detector(Board()), workers=w, warmup=2, run=3))
+    one, two = (list(detect_frames(frames, Detector(Board(), STREAM), workers=w, warmup=2,
+                                   run=3))
                 for w in (1, 2))
     for a, b in zip(one, two, strict=True):
         np.testing.assert_array_equal(a.ids, b.ids)

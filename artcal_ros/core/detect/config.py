@@ -52,7 +52,10 @@ class DetectorConfig:
         stream: a Detector's frames are taken as consecutive frames of one stream: the
             markers the frames before verified are predicted, refined directly and the quad
             finder searches only the rest of the image (:mod:`.stream_predict`; a frame the
-            prediction does not fit is searched whole).
+            prediction does not fit is searched whole). Off by default: it saves
+            little while the edge fit dominates a frame (docs/history.md), and frames
+            that do not follow each other (photos, the node's background views) would
+            pay for a failed prediction.
     """
 
     gamma: float = 0.0
@@ -73,7 +76,7 @@ class DetectorConfig:
     edge_shift: bool = True
     censor_clipped: bool = True
     grid_search: bool = True
-    stream: bool = True
+    stream: bool = False
 
     @classmethod
     def from_params(cls, params: Mapping[str, Any]) -> DetectorConfig:

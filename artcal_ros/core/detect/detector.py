@@ -4,9 +4,9 @@ The stages of one image, in :meth:`Detector.detect`'s order:
 
 1. candidates: quads and ids from OpenCV's ArUco detector on an 8-bit copy, the quads it
    could not read decoded again against the board's own patterns (:mod:`.candidates`);
-   only the board's ids, of the board's polarity. In a stream of consecutive frames, the
-   markers the frames before verified are predicted first and the quad finder searches
-   only the rest of the image (:mod:`.stream_predict`);
+   only the board's ids, of the board's polarity. With ``DetectorConfig(stream=True)``,
+   for consecutive frames, the markers the frames before verified are predicted first and
+   the quad finder searches only the rest of the image (:mod:`.stream_predict`);
 2. exposure: whether the frame is clipped or partly saturated (:mod:`.exposure`);
 3. edges: every side fitted with a blurred-step model in linear light, bent by the lens
    (given, or estimated and pooled over frames), intersected into corners (:mod:`.edges`);
