@@ -72,6 +72,23 @@ def projection_difference(true_cam: CameraModel | HasCamera, est_cam: CameraMode
     return float(np.sqrt(np.mean(d ** 2))), float(d.max())
 
 
+def view_blocks(v: ViewPoints, rvec: np.ndarray, tvec: np.ndarray, sol: Solution,
+                groups: list[tuple[int, ...]], *, weighted: bool = False
+                ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """One view's blocks of the normal equations, each row weighted as the solve weights it:
+    A (2M, p) by the free intrinsics (``groups``: :func:`free_columns` of ``sol``), B (2M, 6)
+    by the view's pose, W = A'B, Vi = (B'B)^+ and the rows' weights sw (2M,) (square roots);
+    A'A - W Vi W' is the view's information about the intrinsics with its pose eliminated.
+    """
+    sw = np.repeat(np.sqrt(point_weights(v) if weighted else np.ones(len(v))), 2)
+    A, B = project_jacobian(v.object_points, rvec, tvec, sol.camera_matrix, sol.dist_coeffs,
+                            sol.model)
+    A = free_jacobian(A, groups) * sw[:, None]
+    B = B * sw[:, None]
+    W = A.T @ B
+    return A, B, W, np.linalg.pinv(B.T @ B), sw
+
+
 def intrinsic_covariance(views: Sequence[ViewPoints], sol: Solution,
                          res: Sequence[np.ndarray], *, weighted: bool = False,
                          by_marker: bool = False) -> tuple[np.ndarray, float]:
@@ -99,16 +116,10 @@ def intrinsic_covariance(views: Sequence[ViewPoints], sol: Solution,
     n_obs = 0
     sse = 0.0
     for v, r, t, e in zip(views, sol.rvecs, sol.tvecs, res, strict=True):
-        sw = np.repeat(np.sqrt(point_weights(v) if weighted else np.ones(len(v))), 2)
-        A, B = project_jacobian(v.object_points, r, t, sol.camera_matrix, sol.dist_coeffs,
-                                sol.model)
-        A = free_jacobian(A, groups) * sw[:, None]
-        B = B * sw[:, None]
+        A, B, W, Vi, sw = view_blocks(v, r, t, sol, groups, weighted=weighted)
         rw = np.asarray(e).ravel() * sw
         sse += float(np.sum(rw ** 2))
         U += A.T @ A
-        W = A.T @ B
-        Vi = np.linalg.pinv(B.T @ B)
         S += W @ Vi @ W.T
         if by_marker:
             # Each row's score on the intrinsics with the view's pose projected out.

@@ -24,7 +24,7 @@ import cv2
 import numpy as np
 
 from artcal_ros.core.board import Board
-from artcal_ros.core.calibrate.lm import bundle_adjust, point_weights
+from artcal_ros.core.calibrate.lm import bundle_adjust
 from artcal_ros.core.calibrate.model import (
     DIST_NAMES,
     TIED_FOCAL,
@@ -33,12 +33,10 @@ from artcal_ros.core.calibrate.model import (
     ViewPoints,
     estimate_pose,
     free_columns,
-    free_jacobian,
     free_parameters,
-    project_jacobian,
     radial_names,
 )
-from artcal_ros.core.calibrate.quality import intrinsic_covariance
+from artcal_ros.core.calibrate.quality import intrinsic_covariance, view_blocks
 from artcal_ros.core.calibrate.solve import residuals
 from artcal_ros.core.errors import CalibrationError
 from artcal_ros.core.live.guidance import NextPose, next_pose
@@ -127,19 +125,22 @@ def provisional_solution(views: Sequence[ViewPoints], image_size: tuple[int, int
     f = provisional_focal_px(views, image_size)
     K = np.array([[f, 0.0, (w - 1) / 2.0], [0.0, f, (h - 1) / 2.0], [0.0, 0.0, 1.0]])
     D = np.zeros(len(DIST_NAMES[model]))
-    poses = [estimate_pose(v, K, D, model) for v in views]
-    rvecs = np.array([r for r, _ in poses]).reshape(-1, 3)
-    tvecs = np.array([t for _, t in poses]).reshape(-1, 3)
-    fitted = _fitted(list(views), K, D, (rvecs, tvecs), model, image_size)
+    fitted = _fitted(list(views), K, D, _poses(views, K, D, model), model, image_size)
     if fitted is not None:
         K, D, rvecs, tvecs = fitted
     else:  # the homography's focal length is no better where the fit cannot tell it
         K = guess_camera_matrix(image_size)
-        poses = [estimate_pose(v, K, D, model) for v in views]
-        rvecs = np.array([r for r, _ in poses]).reshape(-1, 3)
-        tvecs = np.array([t for _, t in poses]).reshape(-1, 3)
+        rvecs, tvecs = _poses(views, K, D, model)
     return Solution(K, D, model, rvecs, tvecs,
                     free_parameters(model, options=options or SolveOptions()))
+
+
+def _poses(views: Sequence[ViewPoints], K: np.ndarray, D: np.ndarray, model: str
+           ) -> tuple[np.ndarray, np.ndarray]:
+    """Each view's pose (rvecs (V, 3), tvecs (V, 3)) from the camera K, D."""
+    poses = [estimate_pose(v, K, D, model) for v in views]
+    return (np.array([r for r, _ in poses]).reshape(-1, 3),
+            np.array([t for _, t in poses]).reshape(-1, 3))
 
 
 def _fitted(views: list[ViewPoints], K: np.ndarray, D: np.ndarray,
@@ -185,13 +186,8 @@ def start_covariance(views: Sequence[ViewPoints], sol: Solution, image_size: tup
                                   else NOMINAL_NOISE_PX)
     info = np.zeros((p, p))
     for v, r, t in zip(views, sol.rvecs, sol.tvecs, strict=True):
-        sw = np.repeat(np.sqrt(point_weights(v) if weighted else np.ones(len(v))), 2)
-        A, B = project_jacobian(v.object_points, r, t, sol.camera_matrix, sol.dist_coeffs,
-                                sol.model)
-        A = free_jacobian(A, groups) * sw[:, None]
-        B = B * sw[:, None]
-        W = A.T @ B
-        info += A.T @ A - W @ np.linalg.pinv(B.T @ B) @ W.T
+        A, _, W, Vi, _ = view_blocks(v, r, t, sol, groups, weighted=weighted)
+        info += A.T @ A - W @ Vi @ W.T
     prior = _prior_covariance(sol, image_size)
     cov = np.linalg.inv(info / sigma ** 2 + np.linalg.inv(prior))
     return cov, sigma
