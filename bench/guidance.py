@@ -8,15 +8,16 @@
 
 Each session starts from the same random view (``--start-views``: 1, or 3 as earlier runs
 did; poses and noise) for every strategy, then adds one view at a time up to
-``--max-views``, re-solving after each from the third view on (the bundle adjustment
-warm-started from the last solve, a new view's pose from the current camera) and measuring
+``--max-views``, re-solving after each from the second view on, as the node's live solve
+does (the bundle adjustment warm-started from the last solve, a new view's pose from the
+current camera) and measuring
 the true projection difference (:func:`projection_difference` against the preset's camera)
 and the solve's own projection uncertainty RMS. The board is the default one (19 x 9
 markers, 1.5 x 0.7 m) or one printed on A4 paper (7 x 5 markers of 30 mm). Three ways to
 choose the next view:
 
 - ``guided``: :func:`next_pose` from the current solve (:func:`first_pose`, from a
-  provisional camera and the intrinsics' prior, before the first solve at 3 views); a
+  provisional camera and the intrinsics' prior, before the first solve at 2 views); a
   virtual user shows that pose with human-sized errors: the board's centre off by a
   Gaussian 10 % of its distance along each camera axis, the board turned by a Gaussian
   10 degrees about a random axis.
@@ -76,6 +77,7 @@ from artcal_ros.core.calibrate.solve import (
 from artcal_ros.core.errors import CalibrationError
 from artcal_ros.core.live.guidance import holdable_pose, next_pose
 from artcal_ros.core.live.guidance_start import first_pose
+from artcal_ros.core.live.live_solve import MIN_VIEWS as SOLVE_VIEWS  # as the node solves
 from artcal_ros.synth import Camera
 from artcal_ros.synth.poses import ease_between
 
@@ -88,7 +90,6 @@ STRATEGIES = ("guided", "random", "bars")
 THRESHOLDS_PX = (0.1, 0.05)
 NOISE_PX = 0.04
 START_VIEWS = 1  # shared random views a session starts from (--start-views)
-SOLVE_VIEWS = 3  # a solve needs this many views (as the node's live solve)
 MIN_POINTS = 24  # 6 markers' corners
 POSITION_ERROR = 0.10  # of the board's distance, per camera axis (1 sigma)
 TILT_ERROR_DEG = 10.0  # 1 sigma, about a random axis

@@ -34,7 +34,7 @@ def test_one_short_session_of_each_strategy_gives_complete_rows() -> None:
 
 
 def test_the_same_seed_starts_every_strategy_from_the_same_views() -> None:
-    # sessions of only the shared start views (3 of them, so that they are solved)
+    # sessions of only the shared start views (as many as a solve needs, so that they are solved)
     first = {s: guidance.run_session("webcam", s, guidance.SEED, guidance.SOLVE_VIEWS,
                                      start_views=guidance.SOLVE_VIEWS)
              for s in guidance.STRATEGIES}

@@ -64,7 +64,7 @@ def test_warm_updates_agree_with_a_cold_solve() -> None:
 def test_a_reset_collection_starts_cold() -> None:
     solver = LiveSolver(BOARD)
     first = noisy_views(CAM, 6, 5)
-    assert solver.update(first[:2], CAM.size) is None  # too few to solve
+    assert solver.update(first[:1], CAM.size) is None  # too few to solve
     assert solver.update(first, CAM.size) is not None
     other = noisy_views(CAM, 5, 6)
     est = solver.update(other, CAM.size)

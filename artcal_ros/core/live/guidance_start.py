@@ -1,7 +1,7 @@
-"""Where to hold the board next before the first full solve (fewer than 3 views).
+"""Where to hold the board next before the first solve (one view).
 
-A solve needs three views, but the user needs guidance from the first one. From one or two
-views :func:`provisional_solution` makes a provisional camera with square pixels and the
+The live solve needs two views, but the user needs guidance from the first one. From one
+(or two) views :func:`provisional_solution` makes a provisional camera with square pixels and the
 principal point at the image centre: the focal length from the views' homographies
 (Zhang's constraints, one unknown), then it and the first radial term fitted to the
 views; views that cannot tell the focal length (facing the camera) leave the nominal

@@ -60,7 +60,7 @@ from artcal_ros.core.live.background import BackgroundTier
 
 __all__ = ["LiveEstimate", "LiveSolve", "LiveSolveConfig", "LiveSolver"]
 
-MIN_VIEWS = 3  # fewer views cannot fix focal lengths and principal point
+MIN_VIEWS = 2  # two differently tilted views fix the focal lengths and principal point
 WARM_TOLERANCE = 1e-8  # a warm solve stops once a step gains less than this share
 WARM_ITERATIONS = 30
 OUTLIER_SIGMAS = 5.0  # as the final solve: robust sigmas, and at least OUTLIER_FLOOR_PX

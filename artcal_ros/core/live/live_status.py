@@ -4,7 +4,7 @@
 (thread "live solve"). After every update, on that thread, it also works out where the
 board should be held next (:func:`~artcal_ros.core.live.guidance.next_pose`), so neither
 the image callback nor the overlay ever waits for a solve: they read the last results.
-Before the first solve (one or two views) the next pose comes from a provisional camera
+Before the first solve (one view) the next pose comes from a provisional camera
 and the intrinsics' prior (:func:`~artcal_ros.core.live.guidance_start.first_pose`).
 """
 
