@@ -5,8 +5,10 @@ The current estimate's information about the free intrinsics (the Jacobian of ev
 poses eliminated by a Schur complement, as :func:`intrinsic_covariance` computes it) is
 added, for each candidate pose, to the information that candidate's view would bring (its
 own Jacobian by the intrinsics A and by its pose B: A^T A - A^T B (B^T B)^-1 B^T A over the
-board points that fall inside the image). The candidate whose sum gives the lowest
-projection uncertainty RMS over the image (as :func:`parameter_effect_px` defines it) wins.
+board points that fall inside the image), and the projection uncertainty RMS over the image
+(as :func:`parameter_effect_px` defines it) after that view follows. The best
+:data:`LOOKAHEAD_TOP` candidates by it are ranked by the lowest RMS each reaches together
+with the best second candidate; the first of the best pair wins.
 
 The candidates (:mod:`~artcal_ros.core.live.guidance_candidates`) are poses a person can
 hold: the board facing the camera or tilted 20, 35 or 50 degrees towards one of eight
@@ -53,6 +55,7 @@ __all__ = ["MATCH_THRESHOLD", "REGIONS", "TILT_DIRECTIONS", "NextPose", "board_o
 MATCH_THRESHOLD = 0.8
 MIN_FILL, MAX_FILL = 0.15, 0.85  # visible share of the image a candidate may cover
 CLOSER, FARTHER = 0.85, 1.18  # distance ratios to the typical view's named as a change
+LOOKAHEAD_TOP = 40  # the best candidates by one view, ranked by the best pair they begin
 
 
 @dataclass(frozen=True)
@@ -157,13 +160,16 @@ def next_pose(views: Sequence[ViewPoints], sol: Solution, board: Board,
     cands = cands.subset(ok)
     if len(cands.T) == 0:
         return None
-    total = info[None] + infos[ok] * weight
+    infos = infos[ok] * weight
     try:
-        covs = np.linalg.inv(total) * sigma ** 2
+        rms = _rms_after(info, infos, sigma, grid_M, n_grid)
+        # Greedy one view at a time can pick a view that leaves no good partner: the best
+        # few by one view are ranked by the best pair of views they begin.
+        top = np.argsort(rms)[:LOOKAHEAD_TOP]
+        k = int(top[int(np.argmin(_best_two(info, infos[top], infos, sigma, grid_M,
+                                             n_grid)))])
     except np.linalg.LinAlgError:
         return None
-    rms = np.sqrt(np.maximum(np.einsum("cij,ji->c", covs, grid_M) / n_grid, 0.0))
-    k = int(np.argmin(rms))
     anchor = (float(cands.anchors[k, 0]), float(cands.anchors[k, 1]))
     direction, tilt = int(cands.direction[k]), float(cands.tilt_deg[k])
     rvec, tvec = cands.rvecs[k].copy(), cands.T[k] - cands.R[k] @ board_centre(board)
@@ -178,6 +184,24 @@ def next_pose(views: Sequence[ViewPoints], sol: Solution, board: Board,
     return NextPose(f"{region}, {distance}, {tilt_text}", region, distance, tilt_word,
                     float(tilt), board_outline(board, rvec, tvec, sol, image_size),
                     rvec, tvec, after, current)
+
+
+def _rms_after(info: np.ndarray, added: np.ndarray, sigma: float, grid_M: np.ndarray,
+               n_grid: int) -> np.ndarray:
+    """(N,) projection uncertainty RMS over the image after adding each of N views'
+    information (N, p, p) to ``info`` (p, p)."""
+    covs = np.linalg.inv(info[None] + added) * sigma ** 2
+    return np.sqrt(np.maximum(np.einsum("cij,ji->c", covs, grid_M) / n_grid, 0.0))
+
+
+def _best_two(info: np.ndarray, first: np.ndarray, then: np.ndarray, sigma: float,
+              grid_M: np.ndarray, n_grid: int) -> np.ndarray:
+    """(N,) the lowest projection uncertainty RMS after each of N views (``first``
+    (N, p, p)) and the best of ``then`` (C, p, p) after it."""
+    out = np.empty(len(first))
+    for k in range(len(first)):
+        out[k] = float(_rms_after(info + first[k], then, sigma, grid_M, n_grid).min())
+    return out
 
 
 def _grid_metric(sol: Solution, image_size: tuple[int, int],
