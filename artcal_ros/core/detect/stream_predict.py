@@ -380,6 +380,13 @@ def _reads_as(lin: np.ndarray, quads: np.ndarray, ids: np.ndarray, table: Patter
     return np.asarray((best <= max_errors) & (sure >= 0.6))
 
 
+def _same_place(quad: np.ndarray, other: np.ndarray) -> bool:
+    """Two reads of one id are one marker: ``other``'s centre within half of ``quad``'s
+    shortest side of ``quad``'s (both (4, 2) pixels)."""
+    d = np.linalg.norm(other.mean(axis=0) - quad.mean(axis=0))
+    return bool(d <= 0.5 * shortest_sides(quad[None])[0])
+
+
 def _unique(quads: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Candidates with each id once: where an id is read at one place (quads within half a
     side of each other) the first is kept, at two places all are dropped."""
@@ -389,8 +396,7 @@ def _unique(quads: np.ndarray, ids: np.ndarray) -> tuple[np.ndarray, np.ndarray]
     for i in np.flatnonzero(np.diff(ids) == 0):
         if not keep[i + 1]:
             continue
-        d = np.linalg.norm(quads[i + 1].mean(axis=0) - quads[i].mean(axis=0))
-        if d > 0.5 * shortest_sides(quads[i:i + 1])[0]:
+        if not _same_place(quads[i], quads[i + 1]):
             keep[ids == ids[i]] = False
         else:
             keep[i + 1] = False
@@ -410,8 +416,7 @@ def _merge(quads: np.ndarray, ids: np.ndarray, found_quads: np.ndarray, found_id
         if j is None:
             continue
         keep_found[k] = False
-        d = np.linalg.norm(found_quads[k].mean(axis=0) - quads[j].mean(axis=0))
-        if d > 0.5 * shortest_sides(quads[j:j + 1])[0]:
+        if not _same_place(quads[j], found_quads[k]):
             keep_pred[j] = False
     return (np.concatenate([quads[keep_pred], found_quads[keep_found]]),
             np.concatenate([ids[keep_pred], found_ids[keep_found]]))
