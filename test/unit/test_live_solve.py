@@ -61,6 +61,18 @@ def test_warm_updates_agree_with_a_cold_solve() -> None:
     assert abs(est.uncertainty_rms_px / cold.uncertainty_rms_px - 1) < 0.02
 
 
+def test_two_views_are_solved_with_an_honest_uncertainty() -> None:
+    # Two tilted views fix the focal lengths and principal point: the live solve answers from
+    # the second view, and its uncertainty already matches its error (one draw each).
+    ratios = []
+    for seed in range(12):
+        est = LiveSolver(BOARD).update(noisy_views(CAM, 2, seed), CAM.size)
+        assert est is not None and est.n_views == 2
+        ratios.append(projection_difference(CAM, est.camera)[0] / est.uncertainty_rms_px)
+    assert all(0.25 < r < 3.0 for r in ratios), ratios
+    assert 0.6 < float(np.median(ratios)) < 1.5, ratios
+
+
 def test_a_reset_collection_starts_cold() -> None:
     solver = LiveSolver(BOARD)
     first = noisy_views(CAM, 6, 5)
