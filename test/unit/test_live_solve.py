@@ -14,7 +14,12 @@ from artcal_ros.core.calibrate.quality import projection_difference
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.live.coverage import CoverageConfig, ViewCollector
 from artcal_ros.core.live.live_solve import MAX_DEFER_S, LiveSolve, LiveSolver
-from artcal_ros.core.live.readiness import calibrate_readiness, live_readiness
+from artcal_ros.core.live.readiness import (
+    calibrate_readiness,
+    live_readiness,
+    not_solved_text,
+    uncertainty_text,
+)
 from artcal_ros.synth import Camera
 from test.unit.noisy_views import BOARD, noisy_views
 
@@ -71,6 +76,13 @@ def test_two_views_are_solved_with_an_honest_uncertainty() -> None:
         ratios.append(projection_difference(CAM, est.camera)[0] / est.uncertainty_rms_px)
     assert all(0.25 < r < 3.0 for r in ratios), ratios
     assert 0.6 < float(np.median(ratios)) < 1.5, ratios
+
+
+def test_the_words_before_the_first_solve() -> None:
+    assert uncertainty_text(None, 1) == "not yet (1 view)"
+    assert uncertainty_text(None, 0) == "not yet (0 views)"
+    assert not_solved_text(1) == "not yet (1 view, needs 2 to solve)"
+    assert not_solved_text(2) == "not yet (2 views, solving)"
 
 
 def test_a_reset_collection_starts_cold() -> None:

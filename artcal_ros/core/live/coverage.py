@@ -298,21 +298,21 @@ def _readiness(cfg: CoverageConfig, n: int, counts: np.ndarray, lr: int, ud: int
     covered = coverage_fraction(counts.reshape(-1) > 0)
     missing: list[str] = []
     if n < cfg.min_views:
-        missing.append(_count(cfg.min_views - n, "more view"))
+        missing.append(count_text(cfg.min_views - n, "more view"))
     if covered < MIN_COVERAGE:
         empty = empty_regions(counts)
         where = f" (nothing yet at {', '.join(empty)})" if empty else ""
         missing.append(f"coverage {covered:.0%} of {MIN_COVERAGE:.0%}{where}")
     if lr < 2:
-        missing.append(f"{_count(2 - lr, 'view')} with the board turned left or right "
+        missing.append(f"{count_text(2 - lr, 'view')} with the board turned left or right "
                        f"by more than {cfg.tilt_deg:g} deg")
     if ud < 2:
-        missing.append(f"{_count(2 - ud, 'view')} with the board tipped up or down "
+        missing.append(f"{count_text(2 - ud, 'view')} with the board tipped up or down "
                        f"by more than {cfg.tilt_deg:g} deg")
     return Readiness(n, cfg.min_views, covered, MIN_COVERAGE, lr, ud, tuple(missing))
 
 
-def _count(n: int, noun: str) -> str:
+def count_text(n: int, noun: str) -> str:
     """``1 view``, ``2 views``."""
     return f"{n} {noun}" if n == 1 else f"{n} {noun}s"
 

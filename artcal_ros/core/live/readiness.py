@@ -11,10 +11,10 @@ from __future__ import annotations
 
 from dataclasses import replace
 
-from artcal_ros.core.live.coverage import Readiness
+from artcal_ros.core.live.coverage import Readiness, count_text
 from artcal_ros.core.live.live_solve import MIN_VIEWS, LiveEstimate
 
-__all__ = ["calibrate_readiness", "live_readiness", "uncertainty_text"]
+__all__ = ["calibrate_readiness", "live_readiness", "not_solved_text", "uncertainty_text"]
 
 
 def live_readiness(collection: Readiness, estimate: LiveEstimate | None,
@@ -37,8 +37,7 @@ def live_readiness(collection: Readiness, estimate: LiveEstimate | None,
         missing.append(f"{needed - n} more view" + ("" if needed - n == 1 else "s"))
     hints = [m for m in collection.missing if "more view" not in m]
     if estimate is None:
-        missing.append(f"projection uncertainty: not yet ({n} views"
-                       + (f", needs {MIN_VIEWS} to solve)" if n < MIN_VIEWS else ", solving)"))
+        missing.append(f"projection uncertainty: {not_solved_text(n)}")
         missing += hints
     elif estimate.uncertainty_rms_px > max_uncertainty_px:
         missing.append(f"projection uncertainty {estimate.uncertainty_rms_px:.3g} px, needs "
@@ -51,9 +50,9 @@ def live_readiness(collection: Readiness, estimate: LiveEstimate | None,
 
 def uncertainty_text(estimate: LiveEstimate | None, views: int) -> str:
     """The diagnostics' ``projection uncertainty``: ``0.083 px RMS, max 0.112 px (14 views)``,
-    or ``not yet (2 views)`` before the first solve."""
+    or ``not yet (1 view)`` before the first solve."""
     if estimate is None:
-        return f"not yet ({views} views)"
+        return f"not yet ({count_text(views, 'view')})"
     return (f"{estimate.uncertainty_rms_px:.3f} px RMS, max {estimate.uncertainty_max_px:.3f} "
             f"px ({estimate.n_views} views)")
 
@@ -77,3 +76,10 @@ def calibrate_readiness(uncertainty_rms_px: float, views: int, min_views: int,
         return (f"ready: projection uncertainty {uncertainty_rms_px:.3g} px <= "
                 f"{max_uncertainty_px:.3g} px")
     return "not ready yet: " + "; ".join(short) + " (add views where 'next pose' says)"
+
+
+def not_solved_text(views: int) -> str:
+    """Why there is no projection uncertainty yet: ``not yet (1 view, needs 2 to solve)``
+    or ``not yet (3 views, solving)``."""
+    return (f"not yet ({count_text(views, 'view')}"
+            + (f", needs {MIN_VIEWS} to solve)" if views < MIN_VIEWS else ", solving)"))

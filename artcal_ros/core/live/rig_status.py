@@ -22,9 +22,9 @@ import numpy as np
 from artcal_ros.core.board import Board
 from artcal_ros.core.detections import Detections
 from artcal_ros.core.live.coverage import Readiness, Snapshot
-from artcal_ros.core.live.live_solve import MIN_VIEWS, LiveEstimate
+from artcal_ros.core.live.live_solve import LiveEstimate
 from artcal_ros.core.live.live_status import LiveStatus
-from artcal_ros.core.live.readiness import uncertainty_text
+from artcal_ros.core.live.readiness import not_solved_text, uncertainty_text
 from artcal_ros.core.live.rig_views import RigSnapshot
 
 __all__ = ["CameraUncertainty", "RigReadiness", "RigStatus", "camera_views"]
@@ -115,8 +115,7 @@ def camera_missing(name: str, estimate: LiveEstimate | None, views: int, rig_vie
         max_uncertainty_px: ``readiness.max_uncertainty``, pixels.
     """
     if estimate is None:
-        return (f"{name}: projection uncertainty not yet ({views} views"
-                + (f", needs {MIN_VIEWS} to solve)" if views < MIN_VIEWS else ", solving)"))
+        return f"{name}: projection uncertainty {not_solved_text(views)}"
     if estimate.uncertainty_rms_px > max_uncertainty_px:
         return (f"{name}: projection uncertainty {estimate.uncertainty_rms_px:.3g} px, needs "
                 f"<= {max_uncertainty_px:.3g} px")
