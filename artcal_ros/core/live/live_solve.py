@@ -167,7 +167,7 @@ class LiveSolver:
 
     def update(self, collection: Sequence[Detections],
                image_size: tuple[int, int]) -> LiveEstimate | None:
-        """Solve the collection (oldest view first); None with fewer than 3 usable views.
+        """Solve the collection (oldest view first); None with fewer than MIN_VIEWS usable views.
 
         Raises:
             CalibrationError: the views cannot be solved (the next update starts cold).
