@@ -22,7 +22,7 @@ from artcal_ros.core.detections import Detections
 from artcal_ros.core.live.coverage import Readiness, Snapshot
 from artcal_ros.core.live.guidance import NextPose, next_pose, pose_match
 from artcal_ros.core.live.guidance_start import first_pose
-from artcal_ros.core.live.live_solve import LiveEstimate, LiveSolve, LiveSolveConfig
+from artcal_ros.core.live.live_solve import MIN_VIEWS, LiveEstimate, LiveSolve, LiveSolveConfig
 from artcal_ros.core.live.overlay import draw_next_pose
 from artcal_ros.core.live.readiness import live_readiness, uncertainty_text
 
@@ -111,7 +111,7 @@ class LiveStatus:
         with self._lock:
             bound, suggestion, why = self._max_uncertainty, self._next, self._next_error
         if estimate is None:
-            solve = self.solve.error or "waiting for 3 usable views"
+            solve = self.solve.error or f"waiting for {MIN_VIEWS} usable views"
             pose = (suggestion.text if suggestion is not None
                     else why or "after the first view")
         else:
