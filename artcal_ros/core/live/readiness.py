@@ -34,7 +34,7 @@ def live_readiness(collection: Readiness, estimate: LiveEstimate | None,
     n, needed = collection.views, collection.views_needed
     missing: list[str] = []
     if n < needed:
-        missing.append(f"{needed - n} more view" + ("" if needed - n == 1 else "s"))
+        missing.append(count_text(needed - n, "more view"))
     hints = [m for m in collection.missing if "more view" not in m]
     if estimate is None:
         missing.append(f"projection uncertainty: {not_solved_text(n)}")
